@@ -1,0 +1,37 @@
+# gravgrasp front door. Every target runs `setup` first when needed; each is a thin
+# call into the packages' own commands.
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+ROS := set +u; source ros_ws/env.sh; set -u;
+PYTEST_ARGS ?=
+
+.PHONY: help setup build test demo lock
+
+help:
+	@echo "make demo   - set up everything and run the main job"
+	@echo "make test   - set up everything and run every test"
+	@echo "make setup  - Debian packages, .venv from requirements.lock, colcon build"
+	@echo "make build  - colcon build only (after adding executables or messages)"
+	@echo "make lock   - re-resolve requirements.in into requirements.lock"
+
+setup:
+	@ros_ws/setup.sh
+
+build:
+	@$(ROS) cd ros_ws && colcon build --symlink-install --event-handlers console_direct- \
+	  --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE=$$VIRTUAL_ENV/bin/python
+
+# pytest exits 5 when it collected no test: that is a failure of the suite, not a pass.
+test: setup
+	@$(ROS) python -m pytest $(PYTEST_ARGS); rc=$$?; \
+	  if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; fi; exit $$rc
+
+demo: setup
+	@$(ROS) python -m pytest -q tests/test_interfaces.py
+
+lock:
+	@rm -rf .venv-lock && python3.11 -m venv .venv-lock && \
+	  .venv-lock/bin/pip install -q -r requirements.in && \
+	  { echo "# Exact pins of every package in .venv (Python 3.11, Debian 12, x86_64)."; \
+	    echo "# Generated from requirements.in by 'make lock'; 'make setup' installs exactly this."; \
+	    .venv-lock/bin/pip freeze; } > requirements.lock && rm -rf .venv-lock

@@ -1,0 +1,23 @@
+from setuptools import find_packages, setup
+
+PACKAGE = "gravgrasp_detector"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    description="Gravity-aware grasp detection: TSDF integration, 3D FCN, grasp extraction, training, and the tsdf/detect/execute nodes.",
+    license="BSD-3-Clause",
+    entry_points={
+        # Each executable is started as: ros2 run gravgrasp_detector <name>
+        "console_scripts": [
+            "bag_play = gravgrasp_detector.bag_replay:main",
+        ],
+    },
+)

@@ -1,0 +1,22 @@
+from setuptools import find_packages, setup
+
+PACKAGE = "sim_bridge"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    description="Drake simulation of the Robotiq 2F-85: grasp simulation, data generation, scenes, the sim bridge node and the clutter-removal benchmark.",
+    license="BSD-3-Clause",
+    entry_points={
+        # Each executable is started as: ros2 run sim_bridge <name>
+        "console_scripts": [
+        ],
+    },
+)

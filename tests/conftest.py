@@ -1,0 +1,54 @@
+"""Shared fixtures. Tests run from a shell that sourced ros_ws/env.sh (make test does)."""
+import os
+
+import pytest
+
+import ros_testing
+
+# One ROS domain for this whole pytest run, claimed before anything starts rclpy, so
+# both this process and the nodes it spawns use it and other runs never cross-talk.
+_DOMAIN = ros_testing.claim_domain_id()
+os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+def pytest_report_header(config):
+    return f"ROS_DOMAIN_ID={_DOMAIN}"
+
+
+def pytest_unconfigure(config):
+    ros_testing.release_domain_id(_DOMAIN)
+
+
+@pytest.fixture
+def ros_node(request):
+    """An rclpy node in the default context (so rclpy.spin_once works on it),
+    initialised for this test and shut down after it."""
+    import re
+
+    import rclpy
+
+    rclpy.init()
+    node = rclpy.create_node("test_" + re.sub(r"\W", "_", request.node.name)[:40])
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+@pytest.fixture
+def ros_process(tmp_path):
+    """Factory: ros_process(pkg, exe, args=(), params={}, remap={}) -> running RosProcess.
+
+    Every process is stopped after the test, and the test fails if one survives."""
+    started = []
+
+    def start(package, name, args=(), params=None, remap=None, env=None, cmd=None):
+        proc = ros_testing.RosProcess(package, name, args, params, remap, env, log_dir=tmp_path, cmd=cmd)
+        started.append(proc)
+        return proc
+
+    yield start
+    for proc in started:
+        proc.stop()
+    leftovers = [p.name for p in started if p.group_alive()]
+    assert not leftovers, f"processes left behind: {leftovers}"
