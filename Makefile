@@ -32,6 +32,4 @@ demo: setup
 lock:
 	@rm -rf .venv-lock && python3.11 -m venv .venv-lock && \
 	  .venv-lock/bin/pip install -q -r requirements.in && \
-	  { echo "# Exact pins of every package in .venv (Python 3.11, Debian 12, x86_64)."; \
-	    echo "# Generated from requirements.in by 'make lock'; 'make setup' installs exactly this."; \
-	    .venv-lock/bin/pip freeze; } > requirements.lock && rm -rf .venv-lock
+	  .venv-lock/bin/python ros_ws/write_lock.py requirements.lock && rm -rf .venv-lock

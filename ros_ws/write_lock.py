@@ -1,0 +1,30 @@
+"""Write requirements.lock: exact pins of every distribution pip installed in .venv.
+
+`pip freeze` also lists the `*.egg-info` folders the ros-* wheels carry inside them
+(e.g. `rclpy==7.1.5` inside ros-rclpy); those are no PyPI projects and break a fresh
+install, so only real `.dist-info` installs are pinned.
+"""
+import importlib.metadata
+import sys
+
+HEADER = """# Exact pins of every package in .venv (Python 3.11, Debian 12, x86_64).
+# Generated from requirements.in by 'make lock'; 'make setup' installs exactly this.
+"""
+
+def main(path: str) -> int:
+    pins = set()
+    for dist in importlib.metadata.distributions():
+        location = str(getattr(dist, "_path", ""))
+        if location.endswith(".dist-info") and dist.read_text("INSTALLER") in ("pip\n", "pip"):
+            name = dist.metadata["Name"]
+            if name == "pip":
+                continue
+            pins.add(f"{name}=={dist.version}")
+    with open(path, "w") as f:
+        f.write(HEADER + "\n".join(sorted(pins, key=str.lower)) + "\n")
+    print(f"write_lock: {len(pins)} pins -> {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1]))
