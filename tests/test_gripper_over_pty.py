@@ -1,0 +1,147 @@
+"""The 2F-85 driver against the register emulator, exchanging real Modbus RTU frames
+over a pseudo-terminal; pymodbus stands in as an independent Modbus implementation."""
+import os
+import time
+
+import pytest
+import serial
+
+from robotiq_driver import modbus_rtu as rtu
+from robotiq_driver.gripper_client import (
+    GripperConnectionError,
+    GripperFault,
+    GripperNotReady,
+    Robotiq2F85,
+)
+from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
+from robotiq_driver.gripper_registers import COMMAND_ADDRESS, STATUS_ADDRESS, GripperState, ObjectStatus
+from robotiq_driver.pty_modbus_server import PtyModbusServer
+
+
+@pytest.fixture
+def emulator():
+    return GripperEmulator(KinematicFingers(object_width_m=0.040), activation_time_s=0.2)
+
+
+@pytest.fixture
+def server(emulator, tmp_path):
+    with PtyModbusServer(emulator, link_path=str(tmp_path / "ttyRobotiq")) as srv:
+        yield srv
+
+
+@pytest.fixture
+def gripper(server):
+    with Robotiq2F85(server.port, timeout_s=0.2) as g:
+        yield g
+
+
+def test_activate_then_close_on_an_object_over_the_wire(gripper, emulator):
+    state = gripper.activate(timeout_s=3.0)
+    assert state.ready and gripper.width_m(state) == pytest.approx(0.085)
+    start = time.monotonic()
+    final = gripper.move_and_wait(0.0, speed_mps=0.150, force_n=40.0, timeout_s=3.0)
+    elapsed = time.monotonic() - start
+    assert final.object_status == ObjectStatus.CONTACT_CLOSING and final.requested == 255
+    assert gripper.width_m(final) == pytest.approx(0.040, abs=0.085 / 255)
+    assert elapsed >= 0.045 / 0.150 * 0.95  # the fingers took their time to get there
+    assert emulator.command.force == gripper.scale.force_to_counts(40.0)
+    # Opening to 60 mm: no object in the way.
+    final = gripper.move_and_wait(0.060, speed_mps=0.150, force_n=40.0, timeout_s=3.0)
+    assert final.object_status == ObjectStatus.AT_POSITION
+    assert gripper.width_m(final) == pytest.approx(0.060, abs=0.085 / 255)
+
+
+def test_motion_before_activation_is_refused(gripper):
+    gripper.reset()
+    with pytest.raises(GripperNotReady, match="activate it first"):
+        gripper.move(0.0, 0.1, 40.0)
+    with pytest.raises(ValueError, match="outside the gripper's range"):
+        gripper.move(0.2, 0.1, 40.0)
+
+
+def test_a_fault_during_motion_is_raised_with_its_meaning(gripper, emulator):
+    gripper.activate(timeout_s=3.0)
+    requested = gripper.move(0.0, speed_mps=0.020, force_n=40.0)
+    emulator.inject_fault(0x0E)
+    with pytest.raises(GripperFault, match="0x0E.*overcurrent"):
+        gripper.wait(timeout_s=2.0, requested=requested)
+    gripper.activate(timeout_s=3.0, force=True)  # reset + activate clears it
+    assert gripper.read_state().fault == 0
+
+
+def test_pymodbus_reads_and_writes_the_emulator(server, emulator):
+    from pymodbus.client import ModbusSerialClient
+
+    client = ModbusSerialClient(server.port, baudrate=115200, timeout=1, retries=1)
+    assert client.connect()
+    try:
+        close = [0x0900, 0x00FF, 0xFF00]
+        assert not client.write_registers(COMMAND_ADDRESS, [0, 0, 0], device_id=9).isError()
+        assert not client.write_registers(COMMAND_ADDRESS, [0x0100, 0, 0], device_id=9).isError()
+        time.sleep(0.25)  # activation time of this emulator
+        assert not client.write_registers(COMMAND_ADDRESS, close, device_id=9).isError()
+        assert emulator.command.go and emulator.command.position == 255
+        reply = client.read_input_registers(STATUS_ADDRESS, count=3, device_id=9)
+        assert not reply.isError()
+        state = GripperState.from_registers(reply.registers)
+        assert state.ready and state.go and state.requested == 255
+        both = client.readwrite_registers(
+            read_address=STATUS_ADDRESS, read_count=3, write_address=COMMAND_ADDRESS, values=[0x0900, 0x0000, 0xFF00],
+            device_id=9,
+        )
+        assert GripperState.from_registers(both.registers).requested == 0
+        bad = client.read_holding_registers(0x0100, count=2, device_id=9)
+        assert bad.isError() and bad.exception_code == rtu.ILLEGAL_DATA_ADDRESS
+    finally:
+        client.close()
+
+
+def test_silence_to_other_slaves_bad_crc_and_when_unresponsive(server, gripper):
+    wrong = rtu.ModbusRtuClient(gripper._serial, timeout_s=0.05, retries=0, name=server.port)
+    with pytest.raises(rtu.ModbusTimeout, match="no answer from slave 10"):
+        wrong.read_holding_registers(10, STATUS_ADDRESS, 3)
+    server.corrupt_responses = 1
+    gripper.read_state()  # the corrupted answer is retried
+    assert gripper.modbus.failed_attempts == 1 and server.corrupt_responses == 0
+    server.respond = False
+    with pytest.raises(rtu.ModbusTimeout, match=r"slave 9 .*3 attempts"):
+        gripper.read_state()
+    server.respond = True
+    gripper.read_state()
+
+
+def test_server_resyncs_after_line_noise(server, gripper):
+    gripper._serial.write(b"\x09\x03\x07")  # a truncated frame, then silence
+    time.sleep(server.frame_timeout_s * 3)
+    assert gripper.read_state() is not None
+    gripper._serial.write(bytes.fromhex("09 10 03 E8 00 03 06 00 00 00 00 00 00 00 00"))  # bad CRC
+    time.sleep(server.frame_timeout_s * 3)
+    assert gripper.read_state() is not None
+    assert server.crc_errors == 1 and server.dropped_bytes >= 3 + 15
+
+
+def test_broadcast_write_is_executed_without_an_answer(server, emulator, gripper):
+    rtu.ModbusRtuClient(gripper._serial).write_registers(0, COMMAND_ADDRESS, [0x0100, 0, 0])
+    deadline = time.monotonic() + 2.0
+    while not emulator.command.activate and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert emulator.command.activate
+    assert gripper._serial.in_waiting == 0
+
+
+def test_port_errors_say_what_to_check(server, gripper, tmp_path):
+    with pytest.raises(GripperConnectionError, match="cannot open serial port .*dialout"):
+        Robotiq2F85(str(tmp_path / "no-such-tty"))
+    with pytest.raises(GripperConnectionError, match="no other program holds it"):
+        Robotiq2F85(server.port)  # the fixture's driver holds it exclusively
+    assert os.path.realpath(server.port) == server.tty_name
+
+
+def test_symlink_is_removed_on_stop(emulator, tmp_path):
+    link = tmp_path / "ttyX"
+    srv = PtyModbusServer(emulator, link_path=str(link)).start()
+    assert link.is_symlink()
+    with serial.Serial(str(link), 115200, timeout=0.2) as port:
+        assert rtu.ModbusRtuClient(port).read_holding_registers(9, STATUS_ADDRESS, 3)
+    srv.stop()
+    assert not link.exists() and not link.is_symlink()
