@@ -1,0 +1,190 @@
+"""From a TSDF grid to ranked grasps: network, masks, non-maximum suppression, poses.
+
+Selection of a voxel as a grasp (all in torch on the output tensors, no copies to
+numpy until the final few grasps):
+1. near-surface mask: within `surface_distance_voxels` (cube neighbourhood) of an
+   observed voxel on or behind a surface (0 < grid <= 0.5). The network is out of
+   its training domain far from anything it saw. Voxels inside objects and in
+   occluded space are kept: a power grasp's TCP can lie inside the object, and the
+   learned validness head (paper Sec. V) is what rejects bad ones.
+2. validness = sigmoid(logit) >= validness_threshold and score_n >= min_score_n.
+3. non-maximum suppression: keep a voxel only if its score is the maximum of the
+   surviving scores in its (2 * nms_radius_voxels + 1)^3 neighbourhood.
+4. rank by score (highest first), keep `max_grasps`, then evaluate the rotation head
+   only at those voxels and rebuild R (rotation.py).
+The TCP position is the voxel centre: origin + (index + 0.5) * voxel_size_m.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from . import rotation
+from .tsdf import InputError
+
+PRECISIONS = ("auto", "bf16", "fp32")
+
+
+@dataclass
+class Grasp:
+    pose: np.ndarray  # 4x4 T_task_tcp (float64)
+    score_n: float  # gravity-rejection score [N]
+    validness: float  # [0, 1]
+    voxel_index: tuple  # (i, j, k)
+
+
+def bf16_available():
+    """True if this CPU runs bf16 convolutions natively (AVX-512 BF16 / AMX)."""
+    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+
+
+def resolve_precision(precision):
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if precision == "auto":
+        return "bf16" if bf16_available() else "fp32"
+    return precision
+
+
+def _prepare(model, precision):
+    # channels_last_3d lets oneDNN run the bf16 convolutions without layout reorders.
+    layout = torch.channels_last_3d if precision == "bf16" else torch.contiguous_format
+    if getattr(model, "_gravgrasp_layout", None) != layout:
+        model.to(memory_format=layout)
+        model._gravgrasp_layout = layout
+    return layout
+
+
+def _to_transform(origin):
+    origin = np.asarray(origin, dtype=np.float64)
+    if origin.shape == (4, 4):
+        return origin
+    if origin.shape == (3,):
+        T = np.eye(4)
+        T[:3, 3] = origin
+        return T
+    raise ValueError(f"origin must be a 3-vector or a 4x4 transform, got shape {origin.shape}")
+
+
+def check_grid(tsdf_grid, resolution):
+    """Raise InputError unless `tsdf_grid` is a finite (R, R, R) grid with something observed."""
+    shape = tuple(tsdf_grid.shape)
+    if shape != (resolution,) * 3:
+        raise InputError(
+            "grid_shape",
+            f"TSDF grid has shape {shape}, the model expects {(resolution,) * 3}: set the "
+            "tsdf node's resolution to the model's",
+        )
+    if not bool(torch.isfinite(tsdf_grid).all()):
+        raise InputError("grid_values", "TSDF grid contains NaN or inf: the volume is corrupt")
+    if not bool((tsdf_grid != 0).any()):
+        raise InputError(
+            "empty_tsdf",
+            "TSDF volume has no observed surface (all voxels 0): integrate depth frames "
+            "that see the workspace (is the tsdf node getting depth and a camera pose?)",
+        )
+
+
+@torch.inference_mode()
+def detect_grasps(
+    model,
+    tsdf_grid,
+    voxel_size_m,
+    origin=(0.0, 0.0, 0.0),
+    validness_threshold=0.5,
+    min_score_n=0.0,
+    max_grasps=20,
+    surface_distance_voxels=6,
+    nms_radius_voxels=2,
+    precision="auto",
+):
+    """Ranked grasps (list of Grasp, highest score first) in the TSDF's frame.
+
+    model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
+    value convention. origin: the grid corner in the task frame (3-vector or 4x4).
+    precision: "bf16" (autocast + channels_last_3d), "fp32", or "auto" (bf16 where
+    the CPU has native bf16). Raises InputError for an unusable grid.
+    """
+    precision = resolve_precision(precision)
+    grid = torch.as_tensor(np.asarray(tsdf_grid, dtype=np.float32))
+    check_grid(grid, model.resolution)
+    layout = _prepare(model, precision)
+    x = grid[None, None].contiguous(memory_format=layout)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+        features = model.features(x)
+        score_n, validness_logit = model.score_and_validness(features)
+    return select_grasps(
+        grid,
+        score_n[0],
+        torch.sigmoid(validness_logit[0]),
+        lambda index: model.rotation_at(features, index),
+        model.rotation_representation,
+        voxel_size_m,
+        origin,
+        validness_threshold=validness_threshold,
+        min_score_n=min_score_n,
+        max_grasps=max_grasps,
+        surface_distance_voxels=surface_distance_voxels,
+        nms_radius_voxels=nms_radius_voxels,
+    )
+
+
+def near_surface_mask(grid, surface_distance_voxels):
+    """(R, R, R) bool: within the cube neighbourhood of an observed on/behind-surface voxel."""
+    occupied = ((grid > 0) & (grid <= 0.5)).float()[None, None]
+    r = int(surface_distance_voxels)
+    return F.max_pool3d(occupied, 2 * r + 1, stride=1, padding=r)[0, 0] > 0
+
+
+def select_grasps(
+    grid,
+    score_n,
+    validness,
+    rotation_channels_at,
+    rotation_representation,
+    voxel_size_m,
+    origin=(0.0, 0.0, 0.0),
+    validness_threshold=0.5,
+    min_score_n=0.0,
+    max_grasps=20,
+    surface_distance_voxels=6,
+    nms_radius_voxels=2,
+):
+    """Steps 1-4 of the module doc on network outputs.
+
+    grid, score_n, validness: (R, R, R) tensors; rotation_channels_at: callable
+    (N, 3) long voxel indices -> (N, C) rotation channels.
+    """
+    grid = torch.as_tensor(grid)
+    score_n = torch.as_tensor(score_n).float()
+    validness = torch.as_tensor(validness).float()
+    candidate = near_surface_mask(grid, surface_distance_voxels)
+    candidate &= validness >= validness_threshold
+    candidate &= score_n >= min_score_n
+    masked = torch.where(candidate, score_n, torch.full_like(score_n, -1.0))
+    r = int(nms_radius_voxels)
+    if r > 0:
+        local_max = F.max_pool3d(masked[None, None], 2 * r + 1, stride=1, padding=r)[0, 0]
+        candidate &= masked == local_max
+    index = candidate.nonzero()
+    scores = score_n[candidate]
+    order = torch.sort(scores, descending=True, stable=True).indices[: int(max_grasps)]
+    index, scores = index[order], scores[order]
+    if len(index) == 0:
+        return []
+    R = rotation.reconstruct(rotation_representation, rotation_channels_at(index).float())
+
+    T_task_grid = _to_transform(origin)
+    poses = np.zeros((len(index), 4, 4))
+    poses[:, :3, :3] = R.double().numpy()
+    poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
+    poses[:, 3, 3] = 1.0
+    poses = T_task_grid @ poses
+    valid = validness[tuple(index.T)].numpy()
+    index_np = index.numpy()
+    return [
+        Grasp(pose=poses[n], score_n=float(scores[n]), validness=float(valid[n]), voxel_index=tuple(int(v) for v in index_np[n]))
+        for n in range(len(index))
+    ]
