@@ -57,7 +57,7 @@ def test_scale_maps_the_stroke_and_rejects_out_of_range_values():
         (scale.width_to_counts, 0.09, r"position = 0.09 m is outside .*0.0..0.085 m"),
         (scale.width_to_counts, float("nan"), "position = nan"),
         (scale.speed_to_counts, 0.01, "speed = 0.01 m/s"),
-        (scale.force_to_counts, 250, "force = 250.0 N"),
+        (scale.force_to_counts, 250, "force = 250 N"),
     ):
         with pytest.raises(ValueError, match=text):
             call(value)

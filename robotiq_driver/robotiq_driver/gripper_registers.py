@@ -214,9 +214,11 @@ class GripperScale:
     @staticmethod
     def _check(name: str, value: float, low: float, high: float, unit: str) -> float:
         value = float(value)
-        # 1e-9 of slack so that values read back from float32 messages pass.
-        if not math.isfinite(value) or not low - 1e-9 <= value <= high + 1e-9:
-            raise ValueError(f"{name} = {value} {unit} is outside the gripper's range {low}..{high} {unit}")
+        # Slack of 1e-6 of the range, so that limits sent as float32 (0.15 arrives as
+        # 0.15000000596) are accepted; they are then clamped onto the range.
+        slack = 1e-6 * (high - low)
+        if not math.isfinite(value) or not low - slack <= value <= high + slack:
+            raise ValueError(f"{name} = {value:.6g} {unit} is outside the gripper's range {low}..{high} {unit}")
         return min(max(value, low), high)
 
     def width_to_counts(self, width_m: float) -> int:
