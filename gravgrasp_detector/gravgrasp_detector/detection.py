@@ -7,7 +7,8 @@ numpy until the final few grasps):
    its training domain far from anything it saw. Voxels inside objects and in
    occluded space are kept: a power grasp's TCP can lie inside the object, and the
    learned validness head (paper Sec. V) is what rejects bad ones.
-2. validness = sigmoid(logit) >= validness_threshold and score_n >= min_score_n.
+2. validness = sigmoid(logit) >= validness_threshold and score_n >= min_score_n
+   (and > 0).
 3. non-maximum suppression: keep a voxel only if its score is the maximum of the
    surviving scores in its (2 * nms_radius_voxels + 1)^3 neighbourhood.
 4. rank by score (highest first), keep `max_grasps`, then evaluate the rotation head
@@ -162,7 +163,7 @@ def select_grasps(
     validness = torch.as_tensor(validness).float()
     candidate = near_surface_mask(grid, surface_distance_voxels)
     candidate &= validness >= validness_threshold
-    candidate &= score_n >= min_score_n
+    candidate &= (score_n >= min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
     masked = torch.where(candidate, score_n, torch.full_like(score_n, -1.0))
     r = int(nms_radius_voxels)
     if r > 0:

@@ -1,0 +1,147 @@
+"""Grasp extraction on hand-made volumes, and the network path that feeds it."""
+import numpy as np
+import pytest
+import torch
+
+from gravgrasp_detector import detection, networks, rotation
+from gravgrasp_detector.tsdf import InputError
+
+VS = 0.0075
+R = 40
+
+
+def table_grid():
+    """A table surface between k=6 and k=7: behind-surface band below, free band above."""
+    grid = np.zeros((R, R, R), np.float32)
+    grid[:, :, 3:7] = 0.3
+    grid[:, :, 7:11] = 0.7
+    return torch.from_numpy(grid)
+
+
+def top_down_channels(index):
+    """Rotation channels (ex-ez) for a top-down grasp: approach -z, fingers close along y."""
+    n = len(index)
+    return torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, -1.0]).repeat(n, 1)
+
+
+def hand_made_outputs():
+    score = torch.zeros(R, R, R)
+    validness = torch.ones(R, R, R)
+    peaks = {(10, 10, 8): 5.0, (20, 20, 8): 9.0, (30, 12, 9): 2.0, (30, 30, 8): 12.0, (5, 35, 30): 20.0}
+    for index, value in peaks.items():
+        score[index] = value
+    score[21, 20, 8] = 8.0  # next to the 9 N peak: suppressed by NMS
+    score[20, 25, 8] = 7.0  # 5 voxels away: a peak of its own
+    validness[30, 30, 8] = 0.2  # best score but not a valid grasp
+    # (5, 35, 30) is far above the table: outside the near-surface mask.
+    return score, validness
+
+
+def select(**kwargs):
+    score, validness = hand_made_outputs()
+    args = dict(voxel_size_m=VS, origin=(0.0, 0.0, 0.0))
+    args.update(kwargs)
+    return detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", **args)
+
+
+def test_hand_made_volume_gives_expected_grasps_in_order():
+    grasps = select()
+    assert [g.voxel_index for g in grasps] == [(20, 20, 8), (20, 25, 8), (10, 10, 8), (30, 12, 9)]
+    assert [g.score_n for g in grasps] == [9.0, 7.0, 5.0, 2.0]
+    expected_R = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])
+    for g in grasps:
+        np.testing.assert_allclose(g.pose[:3, :3], expected_R, atol=1e-7)
+        np.testing.assert_allclose(g.pose[:3, 3], (np.array(g.voxel_index) + 0.5) * VS)
+        np.testing.assert_array_equal(g.pose[3], [0, 0, 0, 1])
+        assert g.validness == 1.0
+
+
+def test_min_score_max_grasps_and_threshold():
+    assert [g.score_n for g in select(min_score_n=5.0)] == [9.0, 7.0, 5.0]
+    assert [g.score_n for g in select(max_grasps=2)] == [9.0, 7.0]
+    # Threshold below the invalid peak's validness lets the 12 N grasp through and it
+    # suppresses nothing else (its neighbours are empty).
+    assert [g.score_n for g in select(validness_threshold=0.1)] == [12.0, 9.0, 7.0, 5.0, 2.0]
+    # Without NMS the 8 N neighbour of the 9 N peak survives.
+    assert 8.0 in [g.score_n for g in select(nms_radius_voxels=0)]
+    # A wider surface distance admits the far peak.
+    assert select(surface_distance_voxels=30)[0].score_n == 20.0
+
+
+def test_origin_transform_moves_poses():
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # grid turned 90 deg about z
+    T[:3, 3] = (0.5, -0.2, 0.1)
+    moved = select(origin=T)
+    plain = select()
+    for a, b in zip(moved, plain):
+        np.testing.assert_allclose(a.pose, T @ b.pose, atol=1e-12)
+    shifted = select(origin=np.array([0.5, -0.2, 0.1]))
+    np.testing.assert_allclose(shifted[0].pose[:3, 3], plain[0].pose[:3, 3] + [0.5, -0.2, 0.1])
+
+
+def test_nothing_valid_gives_no_grasps():
+    score, validness = hand_made_outputs()
+    assert detection.select_grasps(table_grid(), score, validness * 0, top_down_channels, "ex-ez", VS) == []
+
+
+@pytest.mark.parametrize("representation", list(rotation.CHANNELS))
+def test_rotation_at_equals_dense_head(representation):
+    torch.manual_seed(0)
+    net = networks.GraspNet(representation).eval()
+    x = torch.rand(1, 1, R, R, R)
+    index = torch.tensor([[0, 0, 0], [39, 39, 39], [0, 39, 17], [20, 3, 38], [11, 22, 33]])
+    with torch.inference_mode():
+        f = net.features(x)
+        dense = net.rotation_channels(f)[0][:, index[:, 0], index[:, 1], index[:, 2]].T
+        torch.testing.assert_close(net.rotation_at(f, index), dense, atol=1e-5, rtol=1e-4)
+
+
+def test_detect_grasps_fp32_matches_dense_forward():
+    torch.manual_seed(1)
+    net = networks.GraspNet("ex-ez").eval()
+    grid = table_grid()
+    grasps = detection.detect_grasps(net, grid.numpy(), VS, validness_threshold=0.5, max_grasps=30, precision="fp32")
+    with torch.inference_mode():
+        out = net(grid[None, None])
+    validness = torch.sigmoid(out["validness_logit"][0])
+    rot = out["rotation"][0]
+    reference = detection.select_grasps(
+        grid, out["score_n"][0], validness, lambda i: rot[:, i[:, 0], i[:, 1], i[:, 2]].T, "ex-ez", VS, max_grasps=30
+    )
+    assert len(grasps) == len(reference) > 0
+    for a, b in zip(grasps, reference):
+        assert a.voxel_index == b.voxel_index
+        np.testing.assert_allclose(a.pose, b.pose, atol=1e-5)
+    scores = [g.score_n for g in grasps]
+    assert scores == sorted(scores, reverse=True) and min(scores) >= 0
+    assert all(g.validness >= 0.5 for g in grasps)
+    for g in grasps:
+        np.testing.assert_allclose(g.pose[:3, :3].T @ g.pose[:3, :3], np.eye(3), atol=1e-5)
+        assert np.linalg.det(g.pose[:3, :3]) == pytest.approx(1.0, abs=1e-5)
+        assert ((0 <= g.pose[:3, 3]) & (g.pose[:3, 3] <= R * VS)).all()
+
+
+def test_detect_grasps_bf16_path_runs_and_ranks():
+    torch.manual_seed(1)
+    net = networks.GraspNet("ex-ez").eval()
+    grasps = detection.detect_grasps(net, table_grid().numpy(), VS, precision="bf16", max_grasps=10)
+    scores = [g.score_n for g in grasps]
+    assert scores == sorted(scores, reverse=True)
+    # Switching back to fp32 on the same model object restores the contiguous layout.
+    detection.detect_grasps(net, table_grid().numpy(), VS, precision="fp32")
+    assert net.enc1.weight.is_contiguous()
+
+
+@pytest.mark.parametrize(
+    "grid, cause, words",
+    [
+        (np.zeros((32, 32, 32), np.float32), "grid_shape", "the model expects (40, 40, 40)"),
+        (np.full((R, R, R), np.nan, np.float32), "grid_values", "NaN or inf"),
+        (np.zeros((R, R, R), np.float32), "empty_tsdf", "no observed surface"),
+    ],
+)
+def test_bad_grids_raise_one_clear_error(grid, cause, words):
+    with pytest.raises(InputError) as e:
+        detection.detect_grasps(networks.GraspNet().eval(), grid, VS)
+    assert e.value.cause == cause and words in str(e.value)
