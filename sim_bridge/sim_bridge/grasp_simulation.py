@@ -55,7 +55,7 @@ class SimSettings:
     relaxation_time_s: float = 2.5e-3
     closing_speed_rad_s: float = 2.0  # driver joint; open -> closed in ~0.4 s
     max_close_time_s: float = 1.5
-    settle_speed_m_s: float = 2e-3  # object and pads slower than this = settled
+    settle_speed_m_s: float = 5e-3  # object (and pads) slower than this = settled
     force_ramp_rate_n_s: float = 400.0
     max_force_n: float = 200.0  # ramp cap; a score equal to this means "held to the cap"
     departure_travel_m: float = 0.02  # COM travel that ends a ramp ("left the hand")
@@ -253,7 +253,7 @@ class GraspSimulator:
             # finger speed at the pads ~ driver rate x 0.1 m lever
             v_fing = abs(self.plant.GetPositionsAndVelocities(pc)[iv]) * 0.1
             speed = max(np.linalg.norm(v_obj.translational()),
-                        np.linalg.norm(v_obj.rotational()) * 0.05, v_fing)
+                        np.linalg.norm(v_obj.rotational()) * 0.03, v_fing)
             calm = calm + 1 if speed < s.settle_speed_m_s else 0
             if calm >= 3 and t > 0.1:
                 return root, ""

@@ -1,0 +1,98 @@
+"""Physics sanity of the Drake 2F-85 grasp simulation (sim_bridge.grasp_simulation).
+
+Each test runs real SAP/hydroelastic simulations (dt 2 ms, ~1-3 s of wall time each).
+"""
+
+import numpy as np
+import pytest
+
+from sim_bridge import hand_model
+from sim_bridge.grasp_simulation import GraspSimulator, SimSettings, measure_squeeze_force_n
+from sim_bridge.objects import procedural_object
+
+FAST = SimSettings(time_step_s=2e-3)
+
+
+def cylinder_pose(depth_m):
+    """TCP pose in the frame of a z-axis cylinder: approach along -x_O, closing along
+    y_O, cylinder axis along TCP x; the cylinder axis sits `depth_m` along TCP z."""
+    X = np.eye(4)
+    X[:3, :3] = np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    X[:3, 3] = [depth_m, 0, 0]
+    return X
+
+
+def at_depth(depth_m):
+    X = np.eye(4)
+    X[2, 3] = -depth_m  # object origin at TCP z = depth_m
+    return X
+
+
+@pytest.fixture(scope="module")
+def cylinder_sim():
+    cyl = procedural_object("cylinder", (0.065, 0.2), mass_kg=0.5)
+    return GraspSimulator(cyl, FAST)
+
+
+def test_deep_cylinder_is_power_grasp_and_beats_fingertip_grasp(cylinder_sim):
+    power = cylinder_sim.evaluate(cylinder_pose(-0.02))  # axis 20 mm behind the TCP
+    precision = cylinder_sim.evaluate(cylinder_pose(0.0))  # axis at the pinch point
+    assert power.grasped and power.mode == "power", power
+    assert set(power.contact_links) & (set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS))
+    # distal links wrap: the coupler leaves its stop (it stays at 0 in a parallel pinch)
+    assert power.finger_joint_angles["left_coupler"] < -0.05
+    assert precision.grasped and precision.mode == "precision", precision
+    assert set(precision.contact_links) <= set(hand_model.DISTAL_LINKS)
+    assert abs(precision.finger_joint_angles["left_coupler"]) < 0.02
+    assert power.min_score_n > 1.5 * precision.min_score_n
+    # pushing into the palm cannot pull the object out of a power grasp
+    assert power.scores_n[5] >= 0.95 * FAST.max_force_n and not power.departed[5]
+    # precision: friction holds along the cylinder axis, 2 pads x 40 N, mu in [0.5, 0.75]
+    assert 0.4 * 80 < precision.scores_n[0] < 1.0 * 80
+
+
+def test_wider_than_stroke_is_not_grasped():
+    wide = procedural_object("box", (0.04, 0.10, 0.06), mass_kg=0.3)
+    sim = GraspSimulator(wide, FAST)
+    inside = sim.evaluate(np.eye(4))
+    assert not inside.grasped and inside.mode == "none"
+    assert "collides" in inside.reason
+    assert np.all(inside.scores_n == 0)
+    # just beyond the open fingertips: the fingers close in front of it, nothing held
+    beyond = sim.evaluate(at_depth(hand_model.FINGER_LENGTH_M - hand_model.PALM_TO_TCP_M + 0.03 + 0.002))
+    assert not beyond.grasped and beyond.mode == "none"
+
+
+def test_empty_hand_closes_fully(cylinder_sim):
+    far = cylinder_sim.evaluate(cylinder_pose(0.5))
+    assert not far.grasped and far.contact_links == ()
+    assert far.finger_joint_angles["left_driver"] > 0.75  # 0.8 rad = closed stop (pads meet first)
+    assert far.finger_joint_angles["right_driver"] == pytest.approx(far.finger_joint_angles["left_driver"], abs=1e-3)
+
+
+def test_same_inputs_same_scores():
+    box = procedural_object("box", (0.04, 0.05, 0.06), mass_kg=0.3)
+    a = GraspSimulator(box, FAST)
+    first = a.evaluate(at_depth(0.005))
+    again = a.evaluate(at_depth(0.005))  # reused diagram
+    fresh = GraspSimulator(box, FAST).evaluate(at_depth(0.005))
+    assert first.grasped
+    np.testing.assert_array_equal(first.scores_n, again.scores_n)
+    np.testing.assert_array_equal(first.scores_n, fresh.scores_n)
+    np.testing.assert_array_equal(first.X_object_tcp_settled, fresh.X_object_tcp_settled)
+
+
+def test_hydroelastic_and_point_contact_agree_on_a_box():
+    box = procedural_object("box", (0.04, 0.05, 0.06), mass_kg=0.3)
+    hydro = GraspSimulator(box, FAST).evaluate(at_depth(0.005))
+    point = GraspSimulator(box, SimSettings(time_step_s=2e-3, contact_model="point")).evaluate(at_depth(0.005))
+    assert hydro.mode == point.mode == "precision"
+    ratio = hydro.scores_n / point.scores_n
+    assert np.all((ratio > 1 / 2.5) & (ratio < 2.5)), ratio  # measured: 0.97-2.1
+    assert 1 / 1.6 < hydro.min_score_n / point.min_score_n < 1.6  # measured: 1.37
+
+
+def test_grip_force_is_calibrated_to_40_newtons():
+    f = measure_squeeze_force_n(0.05, FAST)
+    assert 36.0 < f < 44.0, f
+    assert measure_squeeze_force_n(0.05, SimSettings(grip_force_n=20.0)) == pytest.approx(f / 2, rel=0.15)
