@@ -1,0 +1,114 @@
+"""Fast collision model of the *open* Robotiq 2F-85 for filtering grasp poses.
+
+The hand is a union of axis-aligned boxes in the TCP frame (origin between the
+finger pads at the pinch point, z = approach palm -> object, y = closing axis,
+x = y x z), sized from the constants of `hand_model` (measured on the Menagerie
+2F-85 at zero joint angles = fully open).  Metres throughout.
+
+     y = closing axis ->          z = approach (down the page)
+          |  |                |  |      distal links + pads: inner face at
+          |  |      TCP       |  |      y = +-stroke/2, up to the finger tips
+        /  /         +         \  \     proximal links (open: tilted outwards)
+      '--------------------------'      palm face, z = -PALM_TO_TCP_M
+      |          housing           |    flange at z = -FLANGE_TO_TCP_M
+          |     wrist / arm stub   |
+
+A pose collides when a point of another body (sampled on its surface, spacing a
+few mm) is inside a box, or a box corner is below the table plane.  The approach
+is checked by sweeping the boxes back along -z by `approach_m` (the hand moves
+along +z from the pre-grasp pose), which for boxes is just a longer box.
+This is a conservative filter; the grasp simulation itself uses the full hand.
+"""
+
+import numpy as np
+import trimesh
+
+from .hand_model import (BODY_HALF_EXTENTS_M, FINGER_HALF_WIDTH_X_M, FINGER_LENGTH_M,
+                         FLANGE_TO_TCP_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_TO_TCP_M)
+
+PALM_FACE_Z_M = -PALM_TO_TCP_M                  # deepest possible insertion
+FINGER_TIP_Z_M = FINGER_LENGTH_M - PALM_TO_TCP_M  # finger tips beyond the pinch point
+WRIST_STUB_M = 0.08       # arm flange / wrist behind the hand, coarse
+FINGER_THICKNESS_M = 0.02  # distal link + pad, across the closing axis
+PROXIMAL_OUTER_Y_M = 0.078  # open proximal links reach this far out (Menagerie, open)
+PROXIMAL_TOP_Z_M = -0.033   # ... and end where the distal link starts
+
+
+def _box(lo, hi):
+    return [list(lo), list(hi)]
+
+
+def _mirror_y(box):
+    (x0, y0, z0), (x1, y1, z1) = box
+    return [[x0, -y1, z0], [x1, -y0, z1]]
+
+
+_h = MAX_STROKE_M / 2
+_bx, _by = BODY_HALF_EXTENTS_M
+_distal = _box((-PAD_WIDTH_M / 2, _h, PROXIMAL_TOP_Z_M - 0.002),
+               (PAD_WIDTH_M / 2, _h + FINGER_THICKNESS_M, FINGER_TIP_Z_M))
+_proximal = _box((-FINGER_HALF_WIDTH_X_M, _h + 0.002, PALM_FACE_Z_M),
+                 (FINGER_HALF_WIDTH_X_M, PROXIMAL_OUTER_Y_M, PROXIMAL_TOP_Z_M))
+# (lo, hi) corners in the TCP frame [m]
+OPEN_HAND_BOXES_TCP = np.array([
+    _box((-_bx, -_by, -FLANGE_TO_TCP_M), (_bx, _by, PALM_FACE_Z_M)),         # housing
+    _box((-0.045, -0.045, -FLANGE_TO_TCP_M - WRIST_STUB_M), (0.045, 0.045, -FLANGE_TO_TCP_M)),
+    _proximal, _mirror_y(_proximal),
+    _distal, _mirror_y(_distal),
+])
+
+POINT_SPACING_M = 0.003     # surface sampling: well below the thinnest box (20 mm)
+
+
+def surface_points(mesh, spacing_m=POINT_SPACING_M, seed=0):
+    """Points on a trimesh surface about `spacing_m` apart, plus its vertices."""
+    count = int(np.clip(mesh.area / spacing_m**2, 100, 200_000))
+    pts, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return np.vstack([pts, mesh.vertices]).astype(np.float64)
+
+
+def _swept_boxes(approach_m):
+    boxes = OPEN_HAND_BOXES_TCP.copy()
+    boxes[:, 0, 2] -= approach_m
+    return boxes
+
+
+def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
+             margin_m=0.0):
+    """(N,) bool: does the open hand at each pose (or on its approach) hit anything?
+
+    X_world_tcp: (N, 4, 4) or (4, 4) hand poses.
+    points_world: (M, 3) surface points of the obstacles, or None.
+    table_z_m: height of the table plane (obstacle below), or None.
+    approach_m: length of the straight approach along +z that ends at the pose.
+    margin_m: grow every box by this much.
+    """
+    X = np.asarray(X_world_tcp, dtype=float)
+    if X.ndim == 2:
+        X = X[None]
+    boxes = _swept_boxes(approach_m)
+    boxes[:, 0] -= margin_m
+    boxes[:, 1] += margin_m
+    hit = np.zeros(len(X), dtype=bool)
+    if table_z_m is not None:
+        # 8 corners of every box, in the world: a convex box is above the plane
+        # iff all its corners are.
+        corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(-1, 3)
+        pts = np.where(corners[None, :, :] == 0, boxes[:, None, 0, :], boxes[:, None, 1, :]).reshape(-1, 3)
+        z = np.einsum("nj,mj->nm", X[:, 2, :3], pts) + X[:, 2, 3][:, None]
+        hit |= (z < table_z_m).any(axis=1)
+    if points_world is not None and len(points_world):
+        P = np.asarray(points_world, dtype=float)
+        lo_all, hi_all = boxes[:, 0].min(0), boxes[:, 1].max(0)
+        radius = np.linalg.norm(np.maximum(np.abs(lo_all), np.abs(hi_all)))
+        for k in np.flatnonzero(~hit):
+            R, t = X[k, :3, :3], X[k, :3, 3]
+            # cheap cull by the bounding sphere of the swept hand
+            d = P - t
+            near = d[np.einsum("mj,mj->m", d, d) < radius**2]
+            if not len(near):
+                continue
+            q = near @ R  # points in the TCP frame
+            inside = ((q[None] >= boxes[:, None, 0]) & (q[None] <= boxes[:, None, 1])).all(-1)
+            hit[k] = inside.any()
+    return hit

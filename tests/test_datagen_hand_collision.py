@@ -1,0 +1,52 @@
+import numpy as np
+
+from sim_bridge import hand_collision
+from sim_bridge.hand_model import MAX_STROKE_M
+
+
+def top_down(p):
+    """TCP at p, approaching straight down (z_tcp = -z_task)."""
+    X = np.eye(4)
+    X[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    X[:3, 3] = p
+    return X
+
+
+def test_points_between_the_open_pads_are_free_and_palm_collides():
+    X = np.eye(4)
+    inside_grip = [0.0, MAX_STROKE_M / 2 - 0.003, 0.0]
+    assert not hand_collision.collides(X, np.array([inside_grip]))[0]
+    assert not hand_collision.collides(X, np.array([[0.0, 0.0, 0.02]]))[0]  # beyond the tips
+    on_pad = [0.0, MAX_STROKE_M / 2 + 0.005, 0.0]
+    assert hand_collision.collides(X, np.array([on_pad]))[0]
+    at_palm = [0.0, 0.0, hand_collision.PALM_FACE_Z_M - 0.002]
+    assert hand_collision.collides(X, np.array([at_palm]))[0]
+
+
+def test_approach_sweep_catches_what_the_fingers_pass_through():
+    X = np.eye(4)
+    beside_links = np.array([[0.0, 0.05, -0.10]])  # beside the housing, behind the fingers
+    assert not hand_collision.collides(X, beside_links, approach_m=0.0)[0]
+    assert hand_collision.collides(X, beside_links, approach_m=0.06)[0]
+
+
+def test_table_plane():
+    tip = hand_collision.FINGER_TIP_Z_M
+    assert not hand_collision.collides(top_down([0.1, 0.1, 0.05 + tip + 0.001]), table_z_m=0.05)[0]
+    assert hand_collision.collides(top_down([0.1, 0.1, 0.05 + tip - 0.002]), table_z_m=0.05)[0]
+    # approaching horizontally, TCP 2 cm above the table, closing axis vertical:
+    # the housing (half height 42 mm along y_tcp) hits the table
+    X = np.eye(4)
+    X[:3, :3] = [[0, 0, 1], [1, 0, 0], [0, 1, 0]]  # x_tcp = y_task, y_tcp = z_task, z_tcp = x_task
+    X[:3, 3] = [0.1, 0.1, 0.07]
+    assert hand_collision.collides(X, table_z_m=0.05)[0]
+
+
+def test_batch_and_surface_points():
+    import trimesh
+    box = trimesh.creation.box((0.04, 0.04, 0.04))
+    pts = hand_collision.surface_points(box)
+    assert len(pts) > 500
+    Xs = np.stack([np.eye(4), np.eye(4)])
+    Xs[1, :3, 3] = [0, 0, 0.05]  # box now sits against the palm
+    np.testing.assert_array_equal(hand_collision.collides(Xs, pts), [False, True])
