@@ -38,7 +38,12 @@ fi
 lock_sum="$(sha256sum "$root/requirements.lock" | cut -d' ' -f1)"
 if [ "$(cat "$stamps/requirements" 2>/dev/null)" != "$lock_sum" ]; then
   say "installing requirements.lock (first time: a few minutes)"
-  "$root/.venv/bin/pip" install -q --disable-pip-version-check -r "$root/requirements.lock"
+  if ! "$root/.venv/bin/pip" install -q --disable-pip-version-check -r "$root/requirements.lock" \
+      > "$stamps/pip-install.log" 2>&1; then
+    grep -v "^WARNING: Location" "$stamps/pip-install.log" | tail -20 >&2
+    echo "[setup] error: pip install failed; full log in $stamps/pip-install.log" >&2
+    exit 1
+  fi
   "$root/.venv/bin/python" "$ws/repair_wheel_cmake.py"
   echo "$lock_sum" > "$stamps/requirements"
 fi
