@@ -61,13 +61,15 @@ def test_node_activates_moves_and_reports_over_emulator_process(ros_node, ros_pr
     rejected = move(ros_node, 0.05, speed_mps=0.5)
     assert not rejected.success and "speed = 0.5 m/s" in rejected.message
 
-    started = move(ros_node, 0.070, speed_mps=0.02, wait=False)  # 1.5 s of travel
-    assert started.success and started.message == "moving to 70.0 mm"
-    assert spin_until(ros_node, lambda: seen.last().moving, 5)
+    started = move(ros_node, 0.085, speed_mps=0.02, wait=False)  # 2.25 s of travel from 40 mm
+    assert started.success and started.message == "moving to 85.0 mm"
+    assert spin_until(ros_node, lambda: seen.last().moving, 5), seen.last()
     assert trigger(ros_node, "/gripper/stop").success
-    assert spin_until(ros_node, lambda: not seen.last().moving, 5)
-    stopped_at = seen.last().position_m
-    assert 0.040 < stopped_at < 0.070
+    assert spin_until(ros_node, lambda: not seen.last().moving, 5), seen.last()
+    count, stopped_at = len(seen.status), seen.last().position_counts
+    assert spin_until(ros_node, lambda: len(seen.status) > count + 10, 5)
+    assert {m.position_counts for m in seen.status[count:]} == {stopped_at}  # it stays put
+    assert 0 < stopped_at < 135  # short of 85 mm (0 counts), past 40 mm (135 counts)
 
     assert trigger(ros_node, "/gripper/activate").message == "activated"
     assert spin_until(ros_node, lambda: any(d.level == DiagnosticStatus.OK for d in seen.diagnostics), 5)
