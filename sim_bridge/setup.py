@@ -17,6 +17,8 @@ setup(
     entry_points={
         # Each executable is started as: ros2 run sim_bridge <name>
         "console_scripts": [
+            "evaluate_grasp = sim_bridge.evaluate_grasp_cli:main",
+            "bench_sim = sim_bridge.bench_sim:main",
         ],
     },
 )
