@@ -145,3 +145,18 @@ def test_symlink_is_removed_on_stop(emulator, tmp_path):
         assert rtu.ModbusRtuClient(port).read_holding_registers(9, STATUS_ADDRESS, 3)
     srv.stop()
     assert not link.exists() and not link.is_symlink()
+
+
+def test_benchmark_runs_and_ends_with_its_figure():
+    import subprocess
+
+    from ros_testing import executable
+
+    out = subprocess.run(
+        [str(executable("robotiq_driver", "bench_gripper")), "--n", "20"],
+        capture_output=True, text=True, timeout=60, check=True,
+    ).stdout.strip().splitlines()
+    name, value = out[-1].split("=")
+    assert name == "status_reads_per_s" and float(value) > 0
+    figures = dict(line.split("=") for line in out)
+    assert float(figures["close_on_40mm_object_s"]) >= 0.95 * float(figures["close_on_40mm_object_fingers_only_s"])
