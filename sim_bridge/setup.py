@@ -19,6 +19,8 @@ setup(
         "console_scripts": [
             "evaluate_grasp = sim_bridge.evaluate_grasp_cli:main",
             "bench_sim = sim_bridge.bench_sim:main",
+            "datagen = sim_bridge.datagen:main",
+            "data_report = sim_bridge.data_report:main",
         ],
     },
 )

@@ -1,0 +1,152 @@
+"""Summary of generated data: `ros2 run sim_bridge data_report DIR [--png FILE]`.
+
+DIR is a datagen output directory (with objects/ and optionally scenes/) or a
+directory of grasp tables.  Prints objects, simulated and successful grasps, mode
+split, skipped objects with their reasons, score statistics per mode, labels per
+scene; writes a PNG with the score histograms per mode and the labels per scene.
+The last three lines are machine-readable:
+  objects=<tables>   grasps=<successful grasps>   power_fraction=<power / successful>
+"""
+
+import argparse
+import io
+import json
+import pathlib
+import sys
+
+import numpy as np
+
+from . import atomic_files
+
+
+def _tables_dir(d):
+    d = pathlib.Path(d)
+    return d / "objects" if (d / "objects").is_dir() else d
+
+
+def collect(data_dir):
+    """Aggregate statistics of a data directory as a dict."""
+    tdir = _tables_dir(data_dir)
+    per_mode = {"power": [], "precision": []}
+    stats = dict(objects=0, simulated=0, grasped=0, power=0, precision=0, sim_wall_time_s=0.0,
+                 grasped_per_object=[], skipped=[])
+    for p in sorted(tdir.glob("*.npz")):
+        with np.load(p) as t:
+            names = [str(n) for n in t["mode_names"]]
+            mode, grasped, scores = t["mode"], t["grasped"], t["scores_n"]
+            stats["objects"] += 1
+            stats["simulated"] += len(mode)
+            stats["grasped"] += int(grasped.sum())
+            stats["grasped_per_object"].append(int(grasped.sum()))
+            stats["sim_wall_time_s"] += float(t["wall_time_s"].sum())
+            for m in per_mode:
+                sel = grasped & (mode == names.index(m))
+                stats[m] += int(sel.sum())
+                per_mode[m].append(scores[sel])
+    for p in sorted(tdir.glob("*.skip.json")):
+        stats["skipped"].append(json.loads(p.read_text()))
+    stats["scores"] = {m: (np.concatenate(v) if v else np.zeros((0, 6))) for m, v in per_mode.items()}
+    sdir = pathlib.Path(data_dir) / "scenes"
+    labels, fg, fg_mode, arrangements = [], [], [], []
+    for p in sorted(sdir.glob("*.npz")) if sdir.is_dir() else []:
+        with np.load(p) as z:
+            labels.append(len(z["label_score"]))
+            fg.append(z["label_score"])
+            fg_mode.append(z["label_mode"])
+            arrangements.append(str(z["arrangement"]))
+    stats["labels_per_scene"] = np.asarray(labels)
+    stats["label_scores"] = np.concatenate(fg) if fg else np.zeros(0)
+    stats["label_modes"] = np.concatenate(fg_mode) if fg_mode else np.zeros(0, np.uint8)
+    stats["arrangements"] = arrangements
+    return stats
+
+
+def report_text(s):
+    lines = []
+    g = s["grasped"]
+    power_fraction = s["power"] / g if g else 0.0
+    lines.append(f"grasp tables: {s['objects']} objects, {s['simulated']} simulated grasps, "
+                 f"{g} held ({100 * g / max(1, s['simulated']):.1f}%)")
+    lines.append(f"modes of held grasps: power {s['power']}, precision {s['precision']}")
+    if s["sim_wall_time_s"] > 0:
+        lines.append(f"simulation wall time: {s['sim_wall_time_s'] / 3600:.2f} core-hours, "
+                     f"{3600 * s['simulated'] / s['sim_wall_time_s']:.0f} grasps per core-hour")
+    if s["grasped_per_object"]:
+        gp = np.asarray(s["grasped_per_object"])
+        lines.append(f"held grasps per object: median {np.median(gp):.0f}, min {gp.min()}, max {gp.max()}, "
+                     f"objects with none: {(gp == 0).sum()}")
+    for m, sc in s["scores"].items():
+        if len(sc):
+            worst = sc.min(axis=1)
+            lines.append(f"{m:9s} scores [N]: worst direction median {np.median(worst):.1f} "
+                         f"(p10 {np.percentile(worst, 10):.1f}, p90 {np.percentile(worst, 90):.1f}); "
+                         f"mean over directions median {np.median(sc.mean(axis=1)):.1f}")
+    if s["skipped"]:
+        lines.append(f"skipped objects: {len(s['skipped'])}")
+        for e in s["skipped"]:
+            lines.append(f"  {e['name']}: {e['reason']}")
+    n = s["labels_per_scene"]
+    if len(n):
+        arr = {a: s["arrangements"].count(a) for a in sorted(set(s["arrangements"]))}
+        lf = s["label_modes"]
+        lines.append(f"scenes: {len(n)} ({', '.join(f'{k} {v}' for k, v in arr.items())}); labels per scene "
+                     f"mean {n.mean():.1f}, median {np.median(n):.0f}, min {n.min()}, max {n.max()}; "
+                     f"scenes without labels: {(n == 0).sum()}")
+        if len(lf):
+            lines.append(f"labels: {len(lf)}, power {100 * (lf == 0).mean():.1f}%; gravity-rejection score "
+                         f"median {np.median(s['label_scores']):.1f} N")
+    lines.append(f"objects={s['objects']}")
+    lines.append(f"grasps={g}")
+    lines.append(f"power_fraction={power_fraction:.4f}")
+    return "\n".join(lines)
+
+
+def report_png(s):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    bins = np.linspace(0, max([1.0] + [float(v.max()) for v in s["scores"].values() if len(v)]), 40)
+    for m, sc in s["scores"].items():
+        if len(sc):
+            axes[0].hist(sc.min(axis=1), bins=bins, alpha=0.6, label=f"{m} ({len(sc)})")
+            axes[1].hist(sc.mean(axis=1), bins=bins, alpha=0.6, label=f"{m} ({len(sc)})")
+    axes[0].set(title="worst-direction disturbance score", xlabel="N", ylabel="grasps")
+    axes[1].set(title="mean of the 6 disturbance scores", xlabel="N")
+    for ax in axes[:2]:
+        ax.legend()
+    if len(s["labels_per_scene"]):
+        axes[2].hist(s["labels_per_scene"], bins=30)
+    axes[2].set(title="labels (voxels) per scene", xlabel="labels", ylabel="scenes")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="data_report", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", help="datagen output directory (objects/, scenes/) or a directory of grasp tables")
+    p.add_argument("--png", default=None, help="write the histograms here (default: DATA/report.png)")
+    args = p.parse_args(argv)
+    tdir = _tables_dir(args.data)
+    if not tdir.is_dir():
+        print(f"data_report: {args.data} is not a directory", file=sys.stderr)
+        return 2
+    s = collect(args.data)
+    if not s["objects"] and not s["skipped"]:
+        print(f"data_report: no grasp tables (*.npz) in {tdir}", file=sys.stderr)
+        return 2
+    png = pathlib.Path(args.png) if args.png else pathlib.Path(args.data) / "report.png"
+    atomic_files.save_bytes(png, report_png(s))
+    print(f"histograms: {png}")
+    print(report_text(s))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,270 @@
+"""Per-object stage: antipodal candidates -> grasp simulation -> grasp table.
+
+One table per object, `<out>/objects/<name>.npz` (all arrays, no pickles):
+
+  name, source_kind ("mesh" | "procedural"), source (URDF/OBJ file name, or
+  "<seed>:<count>:<index>" for `objects.random_procedural_objects`), mass_kg, com_m,
+  seed, sim_settings (JSON of SimSettings), sampling_settings (JSON),
+  X_object_tcp_candidate (N,4,4) float32   sampled pose (object frame, m)
+  X_object_tcp           (N,4,4) float32   pose after the object settled in the hand
+  scores_n               (N,6)   float32   disturbance rejection [N], +x -x +y -y +z -z (TCP)
+  departed               (N,6)   bool      False: held up to SimSettings.max_force_n
+  mode                   (N,)    uint8     index into mode_names ("power", "precision", "none")
+  grasped                (N,)    bool
+  contacts               (N,)    uint16    bit k set = hand link contact_link_names[k] touched
+  finger_joint_names, finger_joint_angles (N,k) float32 [rad]
+  reason                 (N,)    str       why a grasp failed ("" if grasped)
+  wall_time_s            (N,)    float32   simulation wall time (the only non-reproducible field)
+
+Work is split into chunks of grasps so a killed run loses at most one chunk per
+worker; chunk results live in `<out>/objects/.parts/<name>/` until the object is
+complete, then are merged (atomically) and removed.  An object that cannot be
+used gets `<name>.skip.json` with one reason; unexpected errors are reported and
+retried on the next run.
+"""
+
+import dataclasses
+import json
+import pathlib
+import shutil
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from . import atomic_files
+from .antipodal_sampling import SamplingSettings, sample_grasp_candidates
+from .hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
+from .objects import ObjectError, load_mesh_object, random_procedural_objects
+from .parallel import task_seed
+
+MODE_NAMES = ("power", "precision", "none")
+CONTACT_LINK_NAMES = PALM_LINKS + LEFT_LINKS + RIGHT_LINKS
+
+
+@dataclass(frozen=True)
+class ObjectSource:
+    """How to (re)build an object in any process: a mesh file or a procedural index."""
+
+    name: str
+    kind: str            # "mesh" | "procedural"
+    path: str = ""       # mesh: URDF/OBJ path
+    proc_seed: int = 0   # procedural: random_procedural_objects(proc_count, proc_seed)[proc_index]
+    proc_count: int = 0
+    proc_index: int = 0
+
+    def load(self):
+        if self.kind == "mesh":
+            p = pathlib.Path(self.path)
+            if p.suffix.lower() in (".obj", ".stl"):
+                m = trimesh.load(str(p), force="mesh")
+                if not m.is_watertight:
+                    raise ObjectError(f"{p.name}: mesh is not watertight; repair it (or give a URDF "
+                                      "with a convex-decomposed collision mesh)")
+            return load_mesh_object(self.path)
+        return _procedural(self.proc_count, self.proc_seed)[self.proc_index]
+
+    @property
+    def source(self):
+        if self.kind == "mesh":
+            return pathlib.Path(self.path).name
+        return f"{self.proc_seed}:{self.proc_count}:{self.proc_index}"
+
+
+_PROC_CACHE = {}
+
+
+def _procedural(count, seed):
+    key = (count, seed)
+    if key not in _PROC_CACHE:
+        _PROC_CACHE.clear()
+        _PROC_CACHE[key] = random_procedural_objects(count, seed)
+    return _PROC_CACHE[key]
+
+
+def mesh_sources(mesh_dir):
+    """URDFs of a directory (VGN layout), else its OBJ files, sorted by name."""
+    d = pathlib.Path(mesh_dir)
+    files = sorted(d.glob("*.urdf")) or sorted(p for p in d.glob("*.obj") if not p.stem.endswith("_collision"))
+    return [ObjectSource(p.stem, "mesh", path=str(p.resolve())) for p in files]
+
+
+def procedural_sources(count, seed):
+    return [ObjectSource(f"proc{seed}_{i:05d}", "procedural", proc_seed=seed, proc_count=count, proc_index=i)
+            for i in range(count)]
+
+
+def source_from_table(table, mesh_dirs=()):
+    """ObjectSource of a loaded grasp table; mesh files are looked up in mesh_dirs."""
+    name, kind, source = str(table["name"]), str(table["source_kind"]), str(table["source"])
+    if kind == "procedural":
+        seed, count, index = (int(v) for v in source.split(":"))
+        return ObjectSource(name, kind, proc_seed=seed, proc_count=count, proc_index=index)
+    for d in mesh_dirs:
+        p = pathlib.Path(d) / source
+        if p.is_file():
+            return ObjectSource(name, kind, path=str(p.resolve()))
+    raise ObjectError(f"{name}: mesh {source} not found in {', '.join(map(str, mesh_dirs)) or 'no --meshes dir'}")
+
+
+@dataclass(frozen=True)
+class ObjectChunk:
+    """Grasps [start, start + size) of one object's candidate list."""
+
+    source: ObjectSource
+    chunk: int
+    size: int
+    grasps_per_object: int
+    master_seed: int
+    sim_settings: object = None          # SimSettings; None = defaults
+    sampling: SamplingSettings = SamplingSettings()
+    simulator_factory: object = None     # callable(obj, settings) -> .evaluate(X); None = Drake
+
+
+def object_seed(master_seed, name):
+    return task_seed(master_seed, "object", name)
+
+
+def run_chunk(task: ObjectChunk):
+    """Worker: sample the object's candidates (deterministic per object), simulate
+    this chunk.  Returns ("ok", arrays) | ("skip", reason) | ("error", message)."""
+    try:
+        obj = task.source.load()
+    except ObjectError as e:
+        return "skip", str(e)
+    try:
+        return _run_chunk(task, obj)
+    except ObjectError as e:
+        return "skip", str(e)
+    except Exception as e:  # report and retry on the next run, never kill the whole run
+        return "error", f"{type(e).__name__}: {e}"
+
+
+def _run_chunk(task, obj):
+    from .grasp_simulation import GraspSimulator, SimSettings
+
+    settings = task.sim_settings or SimSettings()
+    seed = object_seed(task.master_seed, task.source.name)
+    candidates = sample_grasp_candidates(obj.collision_mesh(), task.grasps_per_object, seed, task.sampling)
+    if not len(candidates):
+        return "skip", (f"{task.source.name}: no antipodal grasp fits the {task.sampling.max_width_m * 1000:.0f} mm "
+                        "stroke with the open hand clear of the object (too large, or too thin/flat)")
+    X = candidates[task.chunk * task.size:(task.chunk + 1) * task.size]
+    factory = task.simulator_factory or GraspSimulator
+    sim = factory(obj, settings) if len(X) else None
+    rows = [_outcome_row(sim.evaluate(x), x) for x in X]
+    meta = dict(n_candidates=len(candidates), mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
+                sim_settings=json.dumps(dataclasses.asdict(settings), sort_keys=True))
+    return "ok", (rows, meta)
+
+
+def _outcome_row(outcome, X_candidate):
+    contacts = 0
+    for link in outcome.contact_links:
+        if link in CONTACT_LINK_NAMES:
+            contacts |= 1 << CONTACT_LINK_NAMES.index(link)
+    return dict(
+        X_object_tcp_candidate=np.asarray(X_candidate, np.float32),
+        X_object_tcp=np.asarray(outcome.X_object_tcp_settled, np.float32),
+        scores_n=np.asarray(outcome.scores_n, np.float32),
+        departed=np.asarray(getattr(outcome, "departed", np.ones(6, bool)), bool),
+        mode=np.uint8(MODE_NAMES.index(outcome.mode)),
+        grasped=bool(outcome.grasped),
+        contacts=np.uint16(contacts),
+        finger_joint_angles=dict(outcome.finger_joint_angles),
+        reason=str(getattr(outcome, "reason", "")),
+        wall_time_s=np.float32(outcome.wall_time_s),
+    )
+
+
+# --- writing (client side) ------------------------------------------------------------
+
+class ObjectStageStore:
+    """Files of the per-object stage under `<out>/objects`."""
+
+    def __init__(self, out_dir):
+        self.dir = pathlib.Path(out_dir) / "objects"
+        self.parts = self.dir / ".parts"
+
+    def table_path(self, name):
+        return self.dir / f"{name}.npz"
+
+    def skip_path(self, name):
+        return self.dir / f"{name}.skip.json"
+
+    def part_path(self, name, chunk):
+        return self.parts / name / f"{chunk:05d}.npz"
+
+    def done(self, name):
+        return self.table_path(name).exists() or self.skip_path(name).exists()
+
+    def pending_chunks(self, name, n_chunks):
+        if self.done(name):
+            return []
+        return [c for c in range(n_chunks) if not self.part_path(name, c).exists()]
+
+    def write_part(self, task: ObjectChunk, rows, meta):
+        arrays = _stack_rows(rows)
+        arrays.update({f"meta_{k}": np.asarray(v) for k, v in meta.items()})
+        atomic_files.save_npz(self.part_path(task.source.name, task.chunk), **arrays)
+
+    def write_skip(self, source: ObjectSource, reason):
+        atomic_files.save_json(self.skip_path(source.name), dict(name=source.name, source_kind=source.kind,
+                                                                 source=source.source, reason=reason))
+        shutil.rmtree(self.parts / source.name, ignore_errors=True)
+
+    def merge_if_complete(self, source: ObjectSource, n_chunks, master_seed, sampling):
+        """Merge the chunk files into the object's table once all exist."""
+        paths = [self.part_path(source.name, c) for c in range(n_chunks)]
+        if not all(p.exists() for p in paths):
+            return False
+        parts = [dict(np.load(p)) for p in paths]
+        table = {}
+        for key in parts[0]:
+            if not key.startswith("meta_") and not key.startswith("finger_joint"):
+                table[key] = np.concatenate([p[key] for p in parts])
+        # chunks may have seen different joints (a failed closure reports none): align
+        names = sorted({str(n) for p in parts for n in p["finger_joint_names"]})
+        angles = np.full((len(table["mode"]), len(names)), np.nan, np.float32)
+        row = 0
+        for p in parts:
+            for j, n in enumerate(p["finger_joint_names"]):
+                angles[row:row + len(p["mode"]), names.index(str(n))] = p["finger_joint_angles"][:, j]
+            row += len(p["mode"])
+        table["finger_joint_names"] = np.asarray(names, dtype=str) if names else np.zeros(0, "<U1")
+        table["finger_joint_angles"] = angles
+        meta = parts[0]
+        table.update(
+            name=np.asarray(source.name), source_kind=np.asarray(source.kind), source=np.asarray(source.source),
+            seed=np.asarray(object_seed(master_seed, source.name), np.uint64),
+            master_seed=np.asarray(master_seed, np.int64),
+            mass_kg=meta["meta_mass_kg"], com_m=meta["meta_com_m"], sim_settings=meta["meta_sim_settings"],
+            n_candidates=meta["meta_n_candidates"],
+            sampling_settings=np.asarray(json.dumps(dataclasses.asdict(sampling), sort_keys=True)),
+            mode_names=np.asarray(MODE_NAMES), contact_link_names=np.asarray(CONTACT_LINK_NAMES),
+        )
+        atomic_files.save_npz(self.table_path(source.name), **table)
+        shutil.rmtree(self.parts / source.name, ignore_errors=True)
+        return True
+
+
+def _stack_rows(rows):
+    keys = ["X_object_tcp_candidate", "X_object_tcp", "scores_n", "departed", "mode", "grasped",
+            "contacts", "reason", "wall_time_s"]
+    out = {k: np.asarray([r[k] for r in rows]) for k in keys}
+    if not rows:
+        out.update(X_object_tcp_candidate=np.zeros((0, 4, 4), np.float32), X_object_tcp=np.zeros((0, 4, 4), np.float32),
+                   scores_n=np.zeros((0, 6), np.float32), departed=np.zeros((0, 6), bool),
+                   mode=np.zeros(0, np.uint8), grasped=np.zeros(0, bool), contacts=np.zeros(0, np.uint16),
+                   reason=np.zeros(0, "<U1"), wall_time_s=np.zeros(0, np.float32))
+    names = sorted({k for r in rows for k in r["finger_joint_angles"]})
+    out["finger_joint_names"] = np.asarray(names, dtype=str) if names else np.zeros(0, "<U1")
+    out["finger_joint_angles"] = np.asarray(
+        [[r["finger_joint_angles"].get(n, np.nan) for n in names] for r in rows], np.float32).reshape(len(rows), len(names))
+    return out
+
+
+def load_table(path):
+    """A grasp table as a dict of numpy arrays (strings as str)."""
+    with np.load(path) as z:
+        return {k: (z[k].item() if z[k].dtype.kind == "U" and z[k].ndim == 0 else z[k]) for k in z.files}

@@ -1,0 +1,214 @@
+"""Scene stage: scenes -> TSDF + sparse gravity-rejection voxel labels (paper Sec. III).
+
+For scene i (seed from --seed and i only):
+1. draw 1..max_objects objects among those whose grasp table has a successful grasp,
+   and "packed" or "pile"; settle them on the table in Drake (scenes.arrange);
+2. render 1..max_views depth images from random views on the upper hemisphere
+   (Open3D ray casting of the posed visual meshes and the table) and fuse them into
+   the 40^3 TSDF of the 0.30 m workspace;
+3. project every successful grasp of every object by the object's pose
+   (X_task_tcp = X_task_object X_object_tcp, the settled hand pose);
+4. drop a grasp if the open hand at that pose, or on its last `approach_m` of
+   straight approach, intersects the table or another object;
+5. f_g from the 6 disturbance scores and the scene gravity (paper Eq. 1);
+6. label the TCP voxel of each grasp (best f_g per voxel).
+
+Stored per scene in `<out>/scenes/<i:06d>.npz`: tsdf (40,40,40) float32 (network
+input convention of gravgrasp_detector.tsdf), label_index (K,3) uint8,
+label_score (K,) float32 [N], label_e_x / label_e_z (K,3) float32, label_mode (K,)
+uint8 (power/precision), label_object (K,) uint8 and label_grasp (K,) int32
+(provenance: row of that object's grasp table), the object names and poses,
+the arrangement, the camera poses and intrinsics, and the counts of projected
+and collision-free grasps.
+"""
+
+import hashlib
+import json
+import pathlib
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from . import atomic_files, hand_collision
+from .gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
+from .object_grasps import MODE_NAMES, load_table, source_from_table
+from .parallel import make_executor, run_tasks, task_seed
+from .scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
+from .voxel_labels import RESOLUTION, voxel_labels
+
+APPROACH_M = 0.05  # straight approach checked for collisions (pre-grasp distance)
+# VGN's simulated camera
+IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX = 640, 480, 540.0
+
+
+@dataclass(frozen=True)
+class SceneTask:
+    index: int
+    master_seed: int
+    objects_dir: str            # <objects out>/objects
+    table_names: tuple          # usable grasp tables, sorted (the object pool)
+    mesh_dirs: tuple
+    max_objects: int = 5
+    max_views: int = 6
+    approach_m: float = APPROACH_M
+    settings: SceneSettings = SceneSettings()
+
+
+def usable_tables(objects_dir):
+    """Names of grasp tables with at least one successful grasp, sorted."""
+    names = []
+    for p in sorted(pathlib.Path(objects_dir).glob("*.npz")):
+        with np.load(p) as t:
+            if t["grasped"].any():
+                names.append(p.stem)
+    return names
+
+
+def run_scene(task: SceneTask):
+    """Worker: ("ok", arrays) or ("error", message)."""
+    try:
+        return "ok", _run_scene(task)
+    except Exception as e:  # reported, retried on the next run
+        return "error", f"scene {task.index}: {type(e).__name__}: {e}"
+
+
+def _run_scene(task):
+    from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
+
+    from .depth_rendering import DepthRenderer, random_view_on_hemisphere
+
+    rng = np.random.default_rng(task_seed(task.master_seed, "scene", task.index))
+    n_req = int(rng.integers(1, task.max_objects + 1))
+    arrangement = str(rng.choice(ARRANGEMENTS))
+    pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
+    tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
+    specs = [source_from_table(t, task.mesh_dirs).load() for t in tables]
+    keep, poses = arrange(specs, arrangement, rng, task.settings)
+    tables = [tables[i] for i in keep]
+    specs = [specs[i] for i in keep]
+
+    # depth views -> TSDF
+    table_mesh = trimesh.creation.box((2.0, 2.0, 0.05))
+    table_mesh.apply_translation([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M - 0.025])
+    renderer = DepthRenderer([table_mesh] + [(_visual_mesh(s), X) for s, X in zip(specs, poses)])
+    intrinsics = CameraIntrinsics(IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX,
+                                  (IMAGE_WIDTH - 1) / 2, (IMAGE_HEIGHT - 1) / 2)
+    tsdf = TSDFVolume(size_m=VOLUME_SIZE_M, resolution=RESOLUTION)
+    target = np.array([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M])
+    views = []
+    for _ in range(int(rng.integers(1, task.max_views + 1))):
+        T = random_view_on_hemisphere(rng, target)
+        tsdf.integrate(renderer.render(intrinsics, T), intrinsics, T)
+        views.append(T)
+
+    # project grasps, filter collisions, gravity projection
+    meshes = [s.collision_mesh() for s in specs]
+    points = [hand_collision.surface_points(m, seed=0) @ X[:3, :3].T + X[:3, 3] for m, X in zip(meshes, poses)]
+    X_all, f_all, mode_all, obj_all, row_all = [], [], [], [], []
+    n_projected = 0
+    for k, (t, X_obj) in enumerate(zip(tables, poses)):
+        rows = np.flatnonzero(t["grasped"])
+        X = X_obj[None] @ t["X_object_tcp"][rows].astype(np.float64)
+        n_projected += len(rows)
+        others = np.concatenate([p for j, p in enumerate(points) if j != k]) if len(points) > 1 else None
+        free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
+        X, rows = X[free], rows[free]
+        X_all.append(X)
+        f_all.append(gravity_rejection_score(t["scores_n"][rows], X[:, :3, :3]) if len(rows) else np.zeros(0))
+        mode_all.append(t["mode"][rows])
+        obj_all.append(np.full(len(rows), k))
+        row_all.append(rows)
+    cat = (lambda a, shape, dt: np.concatenate(a).astype(dt) if a else np.zeros(shape, dt))
+    X_all = cat(X_all, (0, 4, 4), np.float64)
+    f_all = cat(f_all, (0,), np.float64)
+    labels = voxel_labels(X_all, f_all)
+    g = labels["grasp"]
+    return dict(
+        tsdf=tsdf.grid(),
+        label_index=labels["index"], label_score=labels["score"],
+        label_e_x=labels["e_x"], label_e_z=labels["e_z"],
+        label_mode=cat(mode_all, (0,), np.uint8)[g], label_object=cat(obj_all, (0,), np.uint8)[g],
+        label_grasp=cat(row_all, (0,), np.int32)[g],
+        object_names=np.asarray([str(t["name"]) for t in tables] or [""])[:len(tables)],
+        X_task_object=np.asarray(poses, np.float32).reshape(-1, 4, 4),
+        arrangement=np.asarray(arrangement), n_objects_requested=np.asarray(n_req),
+        T_task_camera=np.asarray(views, np.float32),
+        intrinsics=np.asarray([IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX, intrinsics.cx, intrinsics.cy]),
+        n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
+        table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
+        gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
+        mode_names=np.asarray(MODE_NAMES), seed=np.asarray(task_seed(task.master_seed, "scene", task.index), np.uint64),
+    )
+
+
+_VISUAL_CACHE = {}
+
+
+def _visual_mesh(spec):
+    """What the camera sees: the visual mesh if the object has one, else its collision pieces."""
+    if spec.visual_mesh_path:
+        if spec.visual_mesh_path not in _VISUAL_CACHE:
+            _VISUAL_CACHE[spec.visual_mesh_path] = trimesh.load(spec.visual_mesh_path, force="mesh")
+        return _VISUAL_CACHE[spec.visual_mesh_path]
+    return spec.collision_mesh()
+
+
+class SceneStore:
+    def __init__(self, out_dir):
+        self.dir = pathlib.Path(out_dir) / "scenes"
+
+    def path(self, i):
+        return self.dir / f"{i:06d}.npz"
+
+
+def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
+                    max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings()):
+    """Generate scenes 0..n_scenes-1 that do not exist yet; returns a summary dict."""
+    objects_dir = pathlib.Path(objects_out_dir) / "objects"
+    names = tuple(usable_tables(objects_dir))
+    if not names:
+        raise SystemExit(f"no grasp table with a successful grasp in {objects_dir}: run `datagen objects` first")
+    store = SceneStore(out_dir)
+    store.dir.mkdir(parents=True, exist_ok=True)
+    atomic_files.remove_stale_temporaries(store.dir)
+    # the object pool must not change under a resumed run, or scene i would differ
+    manifest = dict(seed=seed, max_objects=max_objects, max_views=max_views,
+                    objects_dir=str(objects_dir.resolve()),
+                    object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
+                    object_pool_size=len(names))
+    mpath = store.dir / "manifest.json"
+    if mpath.exists():
+        old = json.loads(mpath.read_text())
+        if old != manifest:
+            changed = sorted(k for k in manifest if old.get(k) != manifest[k])
+            raise SystemExit(f"{store.dir} was generated with different {', '.join(changed)}; "
+                             "use a new --out (scenes must stay reproducible from their seed)")
+    else:
+        atomic_files.save_json(mpath, manifest)
+    tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
+                       settings=settings)
+             for i in range(n_scenes) if not store.path(i).exists()]
+    errors = []
+
+    def on_result(task, result):
+        status, payload = result
+        if status == "ok":
+            atomic_files.save_npz(store.path(task.index), **payload)
+        else:
+            errors.append(payload)
+
+    if tasks:
+        if executor is not None:
+            run_tasks(executor, run_scene, tasks, on_result, desc="scenes", progress=progress)
+        else:
+            with make_executor(workers, scheduler) as ex:
+                run_tasks(ex, run_scene, tasks, on_result, desc="scenes", progress=progress)
+    for e in errors:
+        print(e)
+    done = [store.path(i) for i in range(n_scenes) if store.path(i).exists()]
+    labels = 0
+    for p in done:
+        with np.load(p) as z:
+            labels += len(z["label_score"])
+    return dict(done=len(done), error=len(errors), labels=labels, errors=errors)
