@@ -296,8 +296,8 @@ def decode_response(frame: bytes, request: bytes) -> tuple[int, ...]:
 class ModbusRtuClient:
     """Request/response transactions over a pyserial-like port.
 
-    ``port`` needs ``write``, ``read(n)`` (returning early on its own timeout),
-    ``reset_input_buffer`` and a ``timeout`` attribute. Timeouts and CRC errors are
+    ``port`` needs ``write``, ``read(n)`` (returning early on its own timeout, which
+    this sets), and ``reset_input_buffer``. Timeouts and CRC errors are
     retried ``retries`` times; exception responses are not (asking again would give
     the same answer).
     """
@@ -308,6 +308,9 @@ class ModbusRtuClient:
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
         self.port, self.timeout_s, self.retries, self.name = port, timeout_s, retries, name
+        # Reads return at least this often, so the loop below keeps its deadline. Set
+        # once: pyserial reconfigures the tty (tcsetattr) on every timeout change.
+        self.port.timeout = min(timeout_s, 0.02)
         self.transactions = 0
         self.failed_attempts = 0
 
@@ -342,7 +345,6 @@ class ModbusRtuClient:
             if remaining <= 0:
                 detail = f" (got {buffer.hex(' ')})" if buffer else ""
                 raise ModbusTimeout(f"timed out after {self.timeout_s} s{detail}")
-            self.port.timeout = min(remaining, 0.05)
             buffer += self.port.read(needed - len(buffer))
             if len(buffer) < needed:
                 continue
