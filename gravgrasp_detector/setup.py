@@ -17,7 +17,11 @@ setup(
     entry_points={
         # Each executable is started as: ros2 run gravgrasp_detector <name>
         "console_scripts": [
+            "tsdf = gravgrasp_detector.tsdf_node:main",
+            "detect = gravgrasp_detector.detect_node:main",
+            "bench_detect = gravgrasp_detector.bench_detect:main",
             "bag_play = gravgrasp_detector.bag_replay:main",
+            "train = gravgrasp_detector.training:main",
         ],
     },
 )

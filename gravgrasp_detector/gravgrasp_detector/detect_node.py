@@ -1,0 +1,225 @@
+"""ROS 2 node `detect`: TSDF volume -> ranked gravity-rejection grasps.
+
+Subscribes  tsdf           gravgrasp_msgs/TSDFVolume (reliable, transient local, depth 1)
+Publishes   grasps         gravgrasp_msgs/GraspArray, sorted by score (highest first)
+            grasp_markers  visualization_msgs/MarkerArray, gripper outlines by score
+Only the newest volume is processed: a volume arriving while the network runs
+replaces any waiting one, so no queue grows when input outpaces detection.
+Bad volumes are logged once per cause with what to fix; the node keeps running.
+A model file that is missing, corrupt or inconsistent stops the node at startup
+with one line and exit code 2.
+"""
+
+import os
+import statistics
+import sys
+import threading
+import time
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Duration
+from gravgrasp_msgs.msg import Grasp as GraspMsg
+from gravgrasp_msgs.msg import GraspArray
+from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from visualization_msgs.msg import MarkerArray
+
+from . import detection, model_file
+from .markers import grasp_markers, matrix_to_pose
+from .model_file import ModelFileError
+from .problem_log import ProblemLog
+from .tsdf import TSDF_CONVENTION, InputError
+from .tsdf_node import VOLUME_QOS
+
+DEFAULT_MODEL = "models/gravgrasp.pt"
+
+
+def resolve_model_path(path):
+    """Relative paths are relative to $GRAVGRASP_ROOT (set by ros_ws/env.sh), else the cwd."""
+    if os.path.isabs(path):
+        return path
+    return os.path.join(os.environ.get("GRAVGRASP_ROOT", os.getcwd()), path)
+
+
+def volume_grid(msg, metadata):
+    """TSDFVolume message -> (grid (R, R, R) float32, T_task_grid). Raises InputError."""
+    try:
+        model_file.check_volume(metadata, msg.resolution, msg.voxel_size_m, msg.truncation_m, TSDF_CONVENTION)
+    except ModelFileError as e:
+        raise InputError("volume_geometry", str(e)) from None
+    n = int(msg.resolution) ** 3
+    if len(msg.tsdf) != n or len(msg.weights) != n:
+        raise InputError(
+            "volume_size",
+            f"TSDF volume has {len(msg.tsdf)} values and {len(msg.weights)} weights for resolution "
+            f"{msg.resolution} (need {n} each): the publisher fills the message wrongly")
+    weights = np.asarray(msg.weights, dtype=np.float32)
+    if not weights.any():
+        raise InputError(
+            "empty_tsdf",
+            "TSDF volume is empty (no voxel ever observed): the tsdf node has not fused a depth "
+            "image yet; check its log for depth, CameraInfo or camera pose problems")
+    grid = np.asarray(msg.tsdf, dtype=np.float32).reshape((int(msg.resolution),) * 3)
+    o = msg.origin
+    T = np.eye(4)
+    T[:3, :3] = _quat_matrix(o.orientation)
+    T[:3, 3] = (o.position.x, o.position.y, o.position.z)
+    return grid, T
+
+
+def _quat_matrix(q):
+    from scipy.spatial.transform import Rotation
+
+    quat = np.array([q.x, q.y, q.z, q.w])
+    if not np.isfinite(quat).all() or abs(np.linalg.norm(quat) - 1) > 1e-3:
+        raise InputError("volume_origin", f"TSDF origin quaternion {quat.tolist()} is not a unit quaternion")
+    return Rotation.from_quat(quat).as_matrix()
+
+
+def _float(description, low, high, read_only=False):
+    return ParameterDescriptor(
+        description=description, read_only=read_only,
+        floating_point_range=[FloatingPointRange(from_value=low, to_value=high)])
+
+
+def _int(description, low, high, read_only=False):
+    return ParameterDescriptor(
+        description=description, read_only=read_only,
+        integer_range=[IntegerRange(from_value=low, to_value=high, step=1)])
+
+
+class DetectNode(Node):
+    def __init__(self):
+        super().__init__("detect")
+        p = self.declare_parameter
+        model_path = p("model_path", DEFAULT_MODEL, ParameterDescriptor(
+            description="Model file (.pt with metadata); relative to $GRAVGRASP_ROOT or the working directory",
+            read_only=True)).value
+        p("validness_threshold", 0.5, _float("Least predicted validness of a returned grasp", 0.0, 1.0))
+        p("min_score_n", 0.0, _float(
+            "Least gravity-rejection score of a returned grasp, N (e.g. object weight x g x safety factor)",
+            0.0, 10000.0))
+        p("max_grasps", 20, _int("Most grasps per volume", 1, 1000))
+        p("surface_distance_voxels", 6, _int("Candidates lie within this many voxels of an observed surface", 1, 40))
+        p("nms_radius_voxels", 2, _int("Non-maximum suppression radius, voxels (0 = off)", 0, 10))
+        p("pregrasp_distance_m", 0.05, _float("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
+        precision = p("precision", "auto", ParameterDescriptor(
+            description="Network arithmetic: 'bf16' (autocast, needs AVX-512 BF16/AMX to be fast), 'fp32', "
+                        "or 'auto' (bf16 where the CPU has it)", read_only=True)).value
+
+        self.model_path = resolve_model_path(model_path)
+        self.model, self.metadata = model_file.load_model(self.model_path)  # ModelFileError -> main
+        try:
+            self.precision = detection.resolve_precision(precision)
+        except ValueError as e:
+            raise ModelFileError(f"precision parameter: {e}") from None
+        self.model_name = os.path.basename(self.model_path)
+        torch_threads = os.environ.get("OMP_NUM_THREADS")
+        self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
+        self.grasps_pub = self.create_publisher(GraspArray, "grasps", 10)
+        self.markers_pub = self.create_publisher(MarkerArray, "grasp_markers", 10)
+        self.create_subscription(TSDFVolumeMsg, "tsdf", self._on_volume, VOLUME_QOS)
+
+        self._latest = None
+        self._wakeup = threading.Condition()
+        self._stop = False
+        self.dropped = 0
+        self.processed = 0
+        self.latencies_ms = []
+        self._last_latency_log = -float("inf")
+        self._worker = threading.Thread(target=self._run, name="detect", daemon=True)
+        self._worker.start()
+        meta = self.metadata
+        self.get_logger().info(
+            f"model {self.model_path}: {meta['network']['rotation_representation']}, "
+            f"{meta['tsdf']['resolution']}^3 at {meta['tsdf']['voxel_size_m']:.4g} m, "
+            f"trained on {meta.get('training_data') or 'unspecified data'}; precision {self.precision}"
+            + (f", OMP_NUM_THREADS={torch_threads}" if torch_threads else ""))
+
+    def _on_volume(self, msg):
+        with self._wakeup:
+            if self._latest is not None:
+                self.dropped += 1  # superseded before the worker got to it
+            self._latest = (msg, time.monotonic())
+            self._wakeup.notify()
+
+    def _run(self):
+        while True:
+            with self._wakeup:
+                while self._latest is None and not self._stop:
+                    self._wakeup.wait()
+                if self._stop:
+                    return
+                (msg, received), self._latest = self._latest, None
+            try:
+                self._detect(msg, received)
+            except InputError as e:
+                self.problems.report(e.cause, str(e))
+            except Exception as e:  # keep answering: one unexpected volume must not kill the node
+                self.problems.report(type(e).__name__, f"detection failed on a volume: {type(e).__name__}: {e}")
+
+    def _detect(self, msg, received):
+        grid, T_task_grid = volume_grid(msg, self.metadata)
+        param = lambda name: self.get_parameter(name).value  # noqa: E731  (live, settable)
+        grasps = detection.detect_grasps(
+            self.model, grid, msg.voxel_size_m, T_task_grid,
+            validness_threshold=param("validness_threshold"),
+            min_score_n=param("min_score_n"),
+            max_grasps=param("max_grasps"),
+            surface_distance_voxels=param("surface_distance_voxels"),
+            nms_radius_voxels=param("nms_radius_voxels"),
+            precision=self.precision,
+        )
+        self.problems.clear()
+        latency_s = time.monotonic() - received
+        out = GraspArray(header=msg.header, model_name=self.model_name)
+        out.detection_latency = Duration(sec=int(latency_s), nanosec=int((latency_s % 1) * 1e9))
+        pregrasp = float(param("pregrasp_distance_m"))
+        out.grasps = [
+            GraspMsg(pose=matrix_to_pose(g.pose), gravity_rejection_score=g.score_n, validness=g.validness,
+                     voxel_index=list(g.voxel_index), pregrasp_distance_m=pregrasp)
+            for g in grasps
+        ]
+        self.grasps_pub.publish(out)
+        self.markers_pub.publish(grasp_markers(grasps, msg.header))
+        self.processed += 1
+        self.latencies_ms = (self.latencies_ms + [latency_s * 1e3])[-50:]
+        now = time.monotonic()
+        if now - self._last_latency_log >= 5.0:  # the first one, then every 5 s
+            self._last_latency_log = now
+            best = f", best {grasps[0].score_n:.2f} N" if grasps else ""
+            self.get_logger().info(
+                f"{len(grasps)} grasps{best}; latency {latency_s * 1e3:.1f} ms "
+                f"(median {statistics.median(self.latencies_ms):.1f} ms of last {len(self.latencies_ms)}); "
+                f"{self.processed} volumes processed, {self.dropped} superseded")
+
+    def destroy_node(self):
+        with self._wakeup:
+            self._stop = True
+            self._wakeup.notify()
+        self._worker.join(timeout=5.0)
+        super().destroy_node()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = DetectNode()
+    except ModelFileError as e:
+        rclpy.logging.get_logger("detect").fatal(f"cannot start: {e}")
+        rclpy.try_shutdown()
+        sys.exit(2)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

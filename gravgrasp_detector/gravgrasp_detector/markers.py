@@ -1,0 +1,60 @@
+"""RViz markers for grasps: schematic 2F-85 outlines coloured by score (no rclpy).
+
+Outline in the TCP frame (z = approach, y = closing axis), fingers open (85 mm):
+
+        y=-0.0425   y=+0.0425
+           |   TCP   |        z = 0 (pinch point), fingertips reach z = +0.01
+           |    x    |
+           +----+----+        palm at z = -0.05
+                |
+                |             wrist stem to z = -0.09
+"""
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose
+from scipy.spatial.transform import Rotation
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+HALF_OPENING_M = 0.0425
+PALM_Z_M = -0.05
+TIP_Z_M = 0.01
+STEM_Z_M = -0.09
+
+# Line segments (start, end) of the outline, TCP frame.
+OUTLINE = np.array([
+    [(-HALF_OPENING_M, PALM_Z_M), (HALF_OPENING_M, PALM_Z_M)],  # palm
+    [(-HALF_OPENING_M, PALM_Z_M), (-HALF_OPENING_M, TIP_Z_M)],  # finger
+    [(HALF_OPENING_M, PALM_Z_M), (HALF_OPENING_M, TIP_Z_M)],  # finger
+    [(0.0, PALM_Z_M), (0.0, STEM_Z_M)],  # stem
+])
+
+
+def score_colour(score_n, max_score_n):
+    """Red (weakest) -> yellow -> green (strongest of this set)."""
+    f = 0.0 if max_score_n <= 0 else float(np.clip(score_n / max_score_n, 0.0, 1.0))
+    return ColorRGBA(r=float(min(1.0, 2 * (1 - f))), g=float(min(1.0, 2 * f)), b=0.0, a=1.0)
+
+
+def matrix_to_pose(T):
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in q)
+    return pose
+
+
+def grasp_markers(grasps, header, line_width_m=0.002):
+    """MarkerArray: DELETEALL, then one LINE_LIST per grasp (namespace 'grasps', id = rank)."""
+    out = MarkerArray()
+    out.markers.append(Marker(header=header, action=Marker.DELETEALL))
+    top = max((g.score_n for g in grasps), default=0.0)
+    points = [Point(x=0.0, y=float(y), z=float(z)) for segment in OUTLINE for (y, z) in segment]
+    for rank, g in enumerate(grasps):
+        m = Marker(header=header, ns="grasps", id=rank, type=Marker.LINE_LIST, action=Marker.ADD)
+        m.pose = matrix_to_pose(g.pose)
+        m.scale.x = line_width_m
+        m.color = score_colour(g.score_n, top)
+        m.points = points
+        out.markers.append(m)
+    return out

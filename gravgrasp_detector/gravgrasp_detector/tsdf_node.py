@@ -1,0 +1,308 @@
+"""ROS 2 node `tsdf`: fuses depth images into the workspace TSDF and publishes it.
+
+Subscribes (sensor-data QoS; names relative, remap them to the camera):
+  depth/image        sensor_msgs/Image, 16UC1 (mm) or 32FC1 (m), REP-118
+  depth/camera_info  sensor_msgs/CameraInfo of that image
+  camera_pose        geometry_msgs/PoseStamped, pose of the camera optical frame in the
+                     task frame (only with camera_pose_source:=topic); each image is
+                     fused with the pose closest to its stamp (within
+                     pose_time_tolerance_s); images wait up to sync_timeout_s for
+                     their CameraInfo and pose.
+Publishes:
+  tsdf               gravgrasp_msgs/TSDFVolume (reliable, transient local, depth 1) at
+                     most publish_rate_hz, whenever new frames were fused.
+Services:
+  ~/reset            std_srvs/Trigger: forget all fused frames.
+  ~/set_integrating  std_srvs/SetBool: pause (false) or resume (true) fusing.
+Bad input is logged once per cause with what to fix; the node keeps running.
+"""
+
+import array
+import collections
+import sys
+import time
+
+import numpy as np
+import rclpy
+from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import SetBool, Trigger
+
+from .problem_log import ProblemLog
+from .tsdf import CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, to_network_grid
+
+DEPTH_ENCODINGS = {"16UC1": np.uint16, "32FC1": np.float32}
+
+VOLUME_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def depth_from_image_msg(msg):
+    """sensor_msgs/Image -> HxW uint16 (mm) or float32 (m) array. Raises InputError."""
+    dtype = DEPTH_ENCODINGS.get(msg.encoding)
+    if dtype is None:
+        raise InputError(
+            "encoding",
+            f"depth image encoding is {msg.encoding!r}: publish 16UC1 (millimetres) or "
+            "32FC1 (metres) per REP-118, e.g. remap depth/image to the camera's depth "
+            "(not colour or disparity) topic",
+        )
+    itemsize = np.dtype(dtype).itemsize
+    if msg.step < msg.width * itemsize or len(msg.data) < msg.step * msg.height or msg.width * msg.height == 0:
+        raise InputError(
+            "malformed_image",
+            f"depth image {msg.width}x{msg.height} {msg.encoding} with step {msg.step} carries "
+            f"{len(msg.data)} bytes (need step >= {msg.width * itemsize} and step x height "
+            "bytes): the publisher fills the message wrongly",
+        )
+    rows = np.frombuffer(bytes(msg.data), np.uint8, msg.step * msg.height).reshape(msg.height, msg.step)
+    depth = rows[:, : msg.width * itemsize].copy().view(np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<"))
+    return depth.astype(dtype, copy=False)
+
+
+def pose_to_matrix(pose):
+    q = (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w)
+    norm = np.linalg.norm(q)
+    if not np.isfinite(q).all() or abs(norm - 1.0) > 1e-3:
+        raise InputError(
+            "camera_pose",
+            f"camera pose quaternion {np.round(q, 4).tolist()} has norm {norm:.4f}: publish a "
+            "unit quaternion (x, y, z, w)",
+        )
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(q).as_matrix()
+    T[:3, 3] = (pose.position.x, pose.position.y, pose.position.z)
+    return T
+
+
+def _stamp_s(stamp):
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def _float(description, low, high, read_only=True):
+    return ParameterDescriptor(
+        description=description, read_only=read_only,
+        floating_point_range=[FloatingPointRange(from_value=low, to_value=high)])
+
+
+class TSDFNode(Node):
+    def __init__(self):
+        super().__init__("tsdf")
+        p = self.declare_parameter
+        size_m = p("size_m", 0.30, _float("Edge of the workspace cube, m (the model's)", 0.05, 5.0)).value
+        resolution = p("resolution", 40, ParameterDescriptor(
+            description="Voxels per edge (the model's)", read_only=True,
+            integer_range=[IntegerRange(from_value=8, to_value=256, step=8)])).value
+        truncation_voxels = p("truncation_voxels", 4.0, _float("TSDF truncation distance, voxels", 1.0, 20.0)).value
+        self.frame_id = p("frame_id", "task", ParameterDescriptor(
+            description="Gravity-aligned task frame: the volume's header.frame_id; its corner is at this frame's origin",
+            read_only=True)).value
+        rate = p("publish_rate_hz", 5.0, _float("Most volumes published per second", 0.1, 100.0)).value
+        self.pose_source = p("camera_pose_source", "topic", ParameterDescriptor(
+            description="'topic': camera pose from the camera_pose PoseStamped topic; "
+                        "'parameter': fixed camera_pose (static extrinsic)", read_only=True)).value
+        static_pose = p("camera_pose", [0.0] * 7, ParameterDescriptor(
+            description="Static pose of the camera optical frame in the task frame: "
+                        "[x, y, z (m), qx, qy, qz, qw]; used with camera_pose_source:=parameter",
+            read_only=True)).value
+        self.max_camera_distance_m = p("max_camera_distance_m", 3.0, _float(
+            "Camera farther than this from the workspace centre is a pose error, m", 0.1, 20.0)).value
+        max_depth_m = p("max_depth_m", 3.0, _float("Depth returns beyond this are ignored, m", 0.1, 20.0)).value
+        self.pose_tolerance_s = p("pose_time_tolerance_s", 0.05, _float(
+            "Largest |pose stamp - image stamp| accepted with camera_pose_source:=topic, s", 0.0, 10.0)).value
+        self.sync_timeout_s = p("sync_timeout_s", 1.0, _float(
+            "How long an image waits for its CameraInfo and pose, s", 0.05, 30.0)).value
+
+        self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
+        self.volume = TSDFVolume(size_m, resolution, truncation_voxels, max_depth_m)
+        self.integrating = True
+        self.camera_info = None
+        self.poses = collections.deque(maxlen=200)  # (stamp_s, T_task_camera)
+        self.pending = collections.deque()  # (received monotonic s, header, depth)
+        self.dirty = False
+        self.last_stamp = None
+        self.static_T = None
+        if self.pose_source == "parameter":
+            self.static_T = self._static_pose(static_pose)
+        elif self.pose_source != "topic":
+            raise InputError("config", f"camera_pose_source is {self.pose_source!r}: use 'topic' or 'parameter'")
+        else:
+            self.create_subscription(PoseStamped, "camera_pose", self._on_pose, qos_profile_sensor_data)
+
+        self.create_subscription(Image, "depth/image", self._on_depth, qos_profile_sensor_data)
+        self.create_subscription(CameraInfo, "depth/camera_info", self._on_camera_info, qos_profile_sensor_data)
+        self.publisher = self.create_publisher(TSDFVolumeMsg, "tsdf", VOLUME_QOS)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SetBool, "~/set_integrating", self._on_set_integrating)
+        self.create_timer(1.0 / rate, self._publish)
+        self.create_timer(0.1, self._expire_pending)
+        self.get_logger().info(
+            f"TSDF {resolution}^3 over {size_m} m in '{self.frame_id}', camera pose from {self.pose_source}; "
+            f"depth on {self.resolve_topic_name('depth/image')}")
+
+    def _static_pose(self, values):
+        if len(values) != 7:
+            raise InputError("config", f"camera_pose has {len(values)} values: give [x, y, z, qx, qy, qz, qw]")
+        msg = PoseStamped()
+        (msg.pose.position.x, msg.pose.position.y, msg.pose.position.z,
+         msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w) = values
+        try:
+            T = pose_to_matrix(msg.pose)
+            check_camera_pose(T, self.volume.size_m, self.max_camera_distance_m)
+        except InputError as e:
+            raise InputError("config", f"camera_pose parameter: {e}") from None
+        return T
+
+    # -- inputs ----------------------------------------------------------------------
+
+    def _on_camera_info(self, msg):
+        try:
+            intrinsics = CameraIntrinsics.from_k(msg.k, msg.width, msg.height)
+            intrinsics.check()
+        except InputError as e:
+            self.problems.report(e.cause, f"{e} (CameraInfo on {self.resolve_topic_name('depth/camera_info')})")
+            return
+        self.problems.clear("camera_info_k", "camera_info_size", "no_camera_info")
+        self.camera_info = intrinsics
+        self._integrate_pending()
+
+    def _on_pose(self, msg):
+        if msg.header.frame_id and msg.header.frame_id != self.frame_id:
+            self.problems.report(
+                "pose_frame",
+                f"camera pose is in frame '{msg.header.frame_id}', expected '{self.frame_id}': "
+                "publish the optical frame's pose in the task frame (or set frame_id)")
+            return
+        try:
+            T = pose_to_matrix(msg.pose)
+        except InputError as e:
+            self.problems.report(e.cause, str(e))
+            return
+        self.problems.clear("pose_frame")
+        self.poses.append((_stamp_s(msg.header.stamp), T))
+        self._integrate_pending()
+
+    def _on_depth(self, msg):
+        if not self.integrating:
+            return
+        try:
+            depth = depth_from_image_msg(msg)
+        except InputError as e:
+            self.problems.report(e.cause, str(e))
+            return
+        self.problems.clear("encoding", "malformed_image")
+        self.pending.append((time.monotonic(), msg.header, depth))
+        self._integrate_pending()
+
+    def _pose_for(self, stamp_s):
+        """-> T, or None to wait; raises InputError when no pose will ever match."""
+        if self.static_T is not None:
+            return self.static_T
+        if not self.poses:
+            return None
+        t, T = min(self.poses, key=lambda tp: abs(tp[0] - stamp_s))
+        if abs(t - stamp_s) <= self.pose_tolerance_s:
+            return T
+        newest = self.poses[-1][0]
+        if newest > stamp_s + self.pose_tolerance_s:
+            raise InputError(
+                "pose_sync",
+                f"no camera pose within {self.pose_tolerance_s} s of a depth image (closest is "
+                f"{t - stamp_s:+.3f} s away): stamp poses like the images or raise pose_time_tolerance_s")
+        return None
+
+    def _integrate_pending(self):
+        while self.pending and self.camera_info is not None:
+            _, header, depth = self.pending[0]
+            try:
+                T = self._pose_for(_stamp_s(header.stamp))
+                if T is None:
+                    return  # wait for the pose
+                self.pending.popleft()
+                check_camera_pose(T, self.volume.size_m, self.max_camera_distance_m)
+                self.volume.integrate(depth, self.camera_info, T)
+            except InputError as e:
+                if self.pending and self.pending[0][2] is depth:
+                    self.pending.popleft()
+                self.problems.report(e.cause, str(e))
+                continue
+            self.problems.clear("size_mismatch", "all_invalid_depth", "camera_pose", "pose_sync", "no_pose")
+            self.dirty = True
+            self.last_stamp = header.stamp
+
+    def _expire_pending(self):
+        now = time.monotonic()
+        while self.pending and now - self.pending[0][0] > self.sync_timeout_s:
+            self.pending.popleft()
+            if self.camera_info is None:
+                self.problems.report(
+                    "no_camera_info",
+                    f"no CameraInfo received on {self.resolve_topic_name('depth/camera_info')} within "
+                    f"{self.sync_timeout_s} s of a depth image: remap depth/camera_info to the camera's "
+                    "camera_info topic")
+            else:
+                self.problems.report(
+                    "no_pose",
+                    f"no camera pose on {self.resolve_topic_name('camera_pose')} for a depth image within "
+                    f"{self.sync_timeout_s} s: publish the camera optical frame's pose (PoseStamped) or "
+                    "use camera_pose_source:=parameter with a static camera_pose")
+
+    # -- output and services -------------------------------------------------------
+
+    def _publish(self):
+        if not self.dirty:
+            return
+        self.dirty = False
+        tsdf, weights = self.volume.tsdf_and_weights()
+        msg = TSDFVolumeMsg()
+        msg.header.frame_id = self.frame_id
+        msg.header.stamp = self.last_stamp
+        msg.origin.orientation.w = 1.0  # corner at the task origin
+        msg.voxel_size_m = self.volume.voxel_size_m
+        msg.resolution = self.volume.resolution
+        msg.truncation_m = self.volume.truncation_m
+        msg.tsdf = array.array("f", to_network_grid(tsdf, weights).tobytes())
+        msg.weights = array.array("f", weights.tobytes())
+        self.publisher.publish(msg)
+
+    def _on_reset(self, request, response):
+        self.volume.reset()
+        self.pending.clear()
+        self.dirty = False
+        response.success = True
+        response.message = "TSDF reset"
+        self.get_logger().info("TSDF reset")
+        return response
+
+    def _on_set_integrating(self, request, response):
+        self.integrating = bool(request.data)
+        response.success = True
+        response.message = "integrating" if self.integrating else "paused"
+        self.get_logger().info(f"integration {response.message}")
+        return response
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = TSDFNode()
+    except InputError as e:
+        rclpy.logging.get_logger("tsdf").fatal(str(e))
+        rclpy.try_shutdown()
+        sys.exit(2)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
