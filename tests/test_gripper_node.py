@@ -79,7 +79,7 @@ def test_node_reports_faults_and_lost_connection_then_recovers(ros_node, ros_pro
     emulator = GripperEmulator(KinematicFingers(), activation_time_s=0.2)
     with PtyModbusServer(emulator, link_path=str(tmp_path / "tty")) as server:
         ros_process("robotiq_driver", "gripper_node", params={
-            "port": server.port, "status_rate_hz": 50.0, "timeout_s": 0.05, "retries": 1,
+            "port": server.port, "status_rate_hz": 50.0, "timeout_s": 0.2, "retries": 1,
             "reconnect_period_s": 0.2,
         })
         seen = Listener(ros_node)

@@ -110,22 +110,26 @@ def test_silence_to_other_slaves_bad_crc_and_when_unresponsive(server, gripper):
     gripper.read_state()
 
 
+def _wait_for(predicate, timeout_s=5.0):
+    deadline = time.monotonic() + timeout_s
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.005)
+    return predicate()
+
+
 def test_server_resyncs_after_line_noise(server, gripper):
     gripper._serial.write(b"\x09\x03\x07")  # a truncated frame, then silence
-    time.sleep(server.frame_timeout_s * 3)
+    assert _wait_for(lambda: server.dropped_bytes == 3)
     assert gripper.read_state() is not None
     gripper._serial.write(bytes.fromhex("09 10 03 E8 00 03 06 00 00 00 00 00 00 00 00"))  # bad CRC
-    time.sleep(server.frame_timeout_s * 3)
+    assert _wait_for(lambda: server.crc_errors == 1)
     assert gripper.read_state() is not None
-    assert server.crc_errors == 1 and server.dropped_bytes >= 3 + 15
+    assert server.dropped_bytes == 3 + 15 and gripper.modbus.failed_attempts == 0
 
 
 def test_broadcast_write_is_executed_without_an_answer(server, emulator, gripper):
     rtu.ModbusRtuClient(gripper._serial).write_registers(0, COMMAND_ADDRESS, [0x0100, 0, 0])
-    deadline = time.monotonic() + 2.0
-    while not emulator.command.activate and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert emulator.command.activate
+    assert _wait_for(lambda: emulator.command.activate)
     assert gripper._serial.in_waiting == 0
 
 
