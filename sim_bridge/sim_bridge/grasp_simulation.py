@@ -50,9 +50,18 @@ class SimSettings:
     dynamic_friction: float = 0.5
     hunt_crossley_dissipation_s_per_m: float = 5.0
     hydroelastic_modulus_pa: float = 1e8
-    # SAP ignores Hunt-Crossley dissipation and uses a Kelvin-Voigt relaxation time
-    # instead; 5 s/m x ~0.5 mm typical penetration -> ~2.5 ms (see README).
-    relaxation_time_s: float = 2.5e-3
+    # SAP ignores Hunt-Crossley dissipation (kept above for the record and for other
+    # solvers) and uses a Kelvin-Voigt relaxation time. Drake's default 0.1 s turns the
+    # tilted rim faces of a hydroelastic patch into a speed-dependent drag (friction
+    # read 1.3 mu, scores grew with the ramp rate); 0 keeps scores rate-independent
+    # (README: ramp-rate dependence). Point contact needs some dissipation to come to
+    # rest (a box between the pads rattled forever with 0). None: 0 / 2.5 ms.
+    relaxation_time_s: float | None = None
+
+    def effective_relaxation_time_s(self) -> float:
+        if self.relaxation_time_s is not None:
+            return self.relaxation_time_s
+        return 0.0 if self.contact_model == "hydroelastic" else 2.5e-3
     closing_speed_rad_s: float = 2.0  # driver joint; open -> closed in ~0.4 s
     max_close_time_s: float = 1.5
     settle_speed_m_s: float = 5e-3  # object (and pads) slower than this = settled
@@ -96,7 +105,7 @@ def proximity_properties(settings: SimSettings) -> ProximityProperties:
         friction=CoulombFriction(settings.static_friction, settings.dynamic_friction),
         properties=props,
     )
-    props.AddProperty("material", "relaxation_time", settings.relaxation_time_s)
+    props.AddProperty("material", "relaxation_time", settings.effective_relaxation_time_s())
     if settings.contact_model == "hydroelastic":
         AddCompliantHydroelasticProperties(0.01, settings.hydroelastic_modulus_pa, props)
     return props
