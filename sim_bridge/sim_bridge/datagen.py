@@ -21,6 +21,7 @@ import sys
 import numpy as np
 
 from . import atomic_files
+from .objects import ObjectError
 from .object_grasps import (ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, run_chunk)
 from .parallel import make_executor, run_tasks
 
@@ -98,7 +99,7 @@ def write_object_report(store, sources, errors=None):
 def _object_sources(args):
     sources = []
     for d in args.meshes or []:
-        sources += mesh_sources(d)
+        sources += mesh_sources(d, args.density)
     if args.procedural:
         sources += procedural_sources(args.procedural, args.procedural_seed)
     if args.limit:
@@ -121,6 +122,8 @@ def main(argv=None):
     o = sub.add_parser("objects", help="per-object grasp tables")
     common(o)
     o.add_argument("--meshes", action="append", help="directory of URDFs (VGN layout) or OBJs; repeatable")
+    o.add_argument("--density", type=float, default=0.0,
+                   help="kg/m^3 for bare OBJ files (URDFs carry their mass)")
     o.add_argument("--procedural", type=int, default=0, help="number of procedural objects")
     o.add_argument("--procedural-seed", type=int, default=0)
     o.add_argument("--grasps-per-object", type=int, default=64)
@@ -137,7 +140,10 @@ def main(argv=None):
 
     args = p.parse_args(argv)
     if args.stage == "objects":
-        sources = _object_sources(args)
+        try:
+            sources = _object_sources(args)
+        except ObjectError as e:
+            p.error(str(e))
         if not sources:
             p.error("no objects: give --meshes DIR (with .urdf or .obj files) and/or --procedural N")
         s = run_object_stage(args.out, sources, args.grasps_per_object, args.seed, args.workers, args.scheduler,

@@ -52,6 +52,7 @@ class ObjectSource:
     proc_seed: int = 0   # procedural: random_procedural_objects(proc_count, proc_seed)[proc_index]
     proc_count: int = 0
     proc_index: int = 0
+    density_kg_m3: float = 0.0  # mesh: for bare OBJ/STL files (URDFs carry their mass)
 
     def load(self):
         if self.kind == "mesh":
@@ -61,7 +62,7 @@ class ObjectSource:
                 if not m.is_watertight:
                     raise ObjectError(f"{p.name}: mesh is not watertight; repair it (or give a URDF "
                                       "with a convex-decomposed collision mesh)")
-            return load_mesh_object(self.path)
+            return load_mesh_object(self.path, density_kg_m3=self.density_kg_m3 or None)
         return _procedural(self.proc_count, self.proc_seed)[self.proc_index]
 
     @property
@@ -82,11 +83,13 @@ def _procedural(count, seed):
     return _PROC_CACHE[key]
 
 
-def mesh_sources(mesh_dir):
+def mesh_sources(mesh_dir, density_kg_m3=0.0):
     """URDFs of a directory (VGN layout), else its OBJ files, sorted by name."""
     d = pathlib.Path(mesh_dir)
+    if not d.is_dir():
+        raise ObjectError(f"mesh directory {d} does not exist")
     files = sorted(d.glob("*.urdf")) or sorted(p for p in d.glob("*.obj") if not p.stem.endswith("_collision"))
-    return [ObjectSource(p.stem, "mesh", path=str(p.resolve())) for p in files]
+    return [ObjectSource(p.stem, "mesh", path=str(p.resolve()), density_kg_m3=density_kg_m3) for p in files]
 
 
 def procedural_sources(count, seed):
@@ -132,6 +135,9 @@ def run_chunk(task: ObjectChunk):
         obj = task.source.load()
     except ObjectError as e:
         return "skip", str(e)
+    except Exception as e:  # e.g. qhull on a flat mesh: still bad input, not a bug of ours
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        return "skip", f"{task.source.name}: mesh cannot be loaded ({type(e).__name__}: {first})"
     try:
         return _run_chunk(task, obj)
     except ObjectError as e:
