@@ -178,9 +178,9 @@ def test_intrinsics_from_camera_info_k():
         (dict(depth=np.full((H, W), np.nan, np.float32)), "all_invalid_depth", "no valid pixel"),
         (dict(depth=np.ones((H, W), np.float64)), "encoding", "float32 metres or uint16 millimetres"),
         (dict(intrinsics=CameraIntrinsics(W, H, 0.0, 0.0, 0.0, 0.0)), "camera_info_k", "not calibrated"),
-        (dict(pose=top_down_pose(z=9.0)), "camera_pose", "from the workspace centre"),
-        (dict(pose=top_down_pose(z=-0.3)), "camera_pose", "behind the camera"),
-        (dict(pose=np.diag([2.0, 1.0, 1.0, 1.0])), "camera_pose", "not a proper rotation"),
+        (dict(pose=top_down_pose(z=9.0)), "camera_pose_far", "from the workspace centre"),
+        (dict(pose=top_down_pose(z=-0.3)), "camera_pose_behind", "behind the camera"),
+        (dict(pose=np.diag([2.0, 1.0, 1.0, 1.0])), "camera_pose_rotation", "not a proper rotation"),
     ],
 )
 def test_bad_input_raises_one_clear_error(change, cause, words):

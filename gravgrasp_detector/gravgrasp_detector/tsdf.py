@@ -97,7 +97,7 @@ def check_camera_pose(T_task_camera, size_m, max_distance_m=3.0):
     T = np.asarray(T_task_camera, dtype=np.float64)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputError(
-            "camera_pose",
+            "camera_pose_matrix",
             "camera pose must be a finite 4x4 transform T_task_camera",
         )
     R = T[:3, :3]
@@ -107,7 +107,7 @@ def check_camera_pose(T_task_camera, size_m, max_distance_m=3.0):
         or not np.allclose(T[3], [0, 0, 0, 1])
     ):
         raise InputError(
-            "camera_pose",
+            "camera_pose_rotation",
             "camera pose rotation is not a proper rotation (check the quaternion is "
             "normalised and the matrix is T_task_camera, not its inverse)",
         )
@@ -115,14 +115,14 @@ def check_camera_pose(T_task_camera, size_m, max_distance_m=3.0):
     distance = np.linalg.norm(T[:3, 3] - centre)
     if distance > max_distance_m:
         raise InputError(
-            "camera_pose",
+            "camera_pose_far",
             f"camera is {distance:.2f} m from the workspace centre (max {max_distance_m} m): "
             "give the pose of the camera optical frame in the task frame, in metres",
         )
     centre_in_camera = R.T @ (centre - T[:3, 3])
     if centre_in_camera[2] <= 0:
         raise InputError(
-            "camera_pose",
+            "camera_pose_behind",
             "the workspace is behind the camera (its centre has z <= 0 in the camera "
             "frame): the pose must be of the optical frame (z forward, x right, y down)",
         )

@@ -70,7 +70,7 @@ def pose_to_matrix(pose):
     norm = np.linalg.norm(q)
     if not np.isfinite(q).all() or abs(norm - 1.0) > 1e-3:
         raise InputError(
-            "camera_pose",
+            "camera_pose_quaternion",
             f"camera pose quaternion {np.round(q, 4).tolist()} has norm {norm:.4f}: publish a "
             "unit quaternion (x, y, z, w)",
         )
@@ -231,7 +231,7 @@ class TSDFNode(Node):
                     self.pending.popleft()
                 self.problems.report(e.cause, str(e))
                 continue
-            self.problems.clear("size_mismatch", "all_invalid_depth", "camera_pose", "pose_sync", "no_pose")
+            self.problems.clear()  # a fused frame: every input is fine again
             self.dirty = True
             self.last_stamp = header.stamp
 
