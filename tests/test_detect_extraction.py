@@ -97,6 +97,33 @@ def test_rotation_at_equals_dense_head(representation):
         torch.testing.assert_close(net.rotation_at(f, index), dense, atol=1e-5, rtol=1e-4)
 
 
+def test_score_and_validness_at_equals_dense_head():
+    torch.manual_seed(0)
+    net = networks.GraspNet(score_scale_n=5.0).eval()
+    index = torch.tensor([[0, 0, 0], [39, 39, 39], [7, 30, 2]])
+    with torch.inference_mode():
+        f = net.features(torch.rand(1, 1, R, R, R))
+        score, logit = net.score_and_validness(f)
+        at_score, at_logit = net.score_and_validness_at(f, index)
+    torch.testing.assert_close(at_score, score[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(at_logit, logit[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
+
+
+def test_rescoring_reranks_and_rethresholds():
+    score, validness = hand_made_outputs()
+    exact = {(20, 20, 8): (1.0, 5.0), (20, 25, 8): (4.0, 5.0), (10, 10, 8): (3.0, -5.0), (30, 12, 9): (2.0, 5.0)}
+
+    def rescore(index):
+        values = torch.tensor([exact[tuple(int(v) for v in i)] for i in index])
+        return values[:, 0], values[:, 1]
+
+    grasps = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS, rescore_at=rescore)
+    # (10, 10, 8) is no longer valid; the others are ranked by their re-computed scores.
+    assert [g.voxel_index for g in grasps] == [(20, 25, 8), (30, 12, 9), (20, 20, 8)]
+    assert [g.score_n for g in grasps] == [4.0, 2.0, 1.0]
+    assert all(g.validness == pytest.approx(torch.sigmoid(torch.tensor(5.0)).item()) for g in grasps)
+
+
 def test_detect_grasps_fp32_matches_dense_forward():
     torch.manual_seed(1)
     net = networks.GraspNet("ex-ez").eval()

@@ -12,7 +12,10 @@ numpy until the final few grasps):
 3. non-maximum suppression: keep a voxel only if its score is the maximum of the
    surviving scores in its (2 * nms_radius_voxels + 1)^3 neighbourhood.
 4. rank by score (highest first), keep `max_grasps`, then evaluate the rotation head
-   only at those voxels and rebuild R (rotation.py).
+   only at those voxels and rebuild R (rotation.py). After a bf16 pass, the best
+   RESCORE_FACTOR x max_grasps are first re-scored by the score/validness head in
+   float32 (on the bf16 features) and re-ranked, so near-ties are not decided by
+   bf16 rounding of the outputs.
 The TCP position is the voxel centre: origin + (index + 0.5) * voxel_size_m.
 """
 
@@ -26,6 +29,9 @@ from . import rotation
 from .tsdf import InputError
 
 PRECISIONS = ("auto", "bf16", "fp32")
+
+# After a bf16 pass, this many times max_grasps candidates are re-scored in float32.
+RESCORE_FACTOR = 4
 
 
 @dataclass
@@ -129,6 +135,7 @@ def detect_grasps(
         max_grasps=max_grasps,
         surface_distance_voxels=surface_distance_voxels,
         nms_radius_voxels=nms_radius_voxels,
+        rescore_at=(lambda index: model.score_and_validness_at(features, index)) if precision == "bf16" else None,
     )
 
 
@@ -164,11 +171,15 @@ def select_grasps(
     max_grasps=20,
     surface_distance_voxels=6,
     nms_radius_voxels=2,
+    rescore_at=None,
 ):
     """Steps 1-4 of the module doc on network outputs.
 
     grid, score_n, validness: (R, R, R) tensors; rotation_channels_at: callable
-    (N, 3) long voxel indices -> (N, C) rotation channels.
+    (N, 3) long voxel indices -> (N, C) rotation channels. rescore_at: optional
+    callable (N, 3) -> (score_n, validness_logit) in float32; if given, the best
+    RESCORE_FACTOR x max_grasps survivors are re-scored with it, re-thresholded and
+    re-ranked (used after a bf16 pass).
     """
     grid = torch.as_tensor(grid)
     score_n = torch.as_tensor(score_n).float()
@@ -182,8 +193,17 @@ def select_grasps(
         candidate &= masked == cube_max(masked, r)
     index = candidate.nonzero()
     scores = score_n[candidate]
-    order = torch.sort(scores, descending=True, stable=True).indices[: int(max_grasps)]
+    keep = int(max_grasps) * (RESCORE_FACTOR if rescore_at is not None else 1)
+    order = torch.sort(scores, descending=True, stable=True).indices[:keep]
     index, scores = index[order], scores[order]
+    valid = validness[tuple(index.T)]
+    if rescore_at is not None and len(index):
+        scores, logits = rescore_at(index)
+        valid = torch.sigmoid(logits)
+        ok = (valid >= validness_threshold) & (scores >= min_score_n) & (scores > 0)
+        index, scores, valid = index[ok], scores[ok], valid[ok]
+        order = torch.sort(scores, descending=True, stable=True).indices[: int(max_grasps)]
+        index, scores, valid = index[order], scores[order], valid[order]
     if len(index) == 0:
         return []
     R = rotation.reconstruct(rotation_representation, rotation_channels_at(index).float())
@@ -194,7 +214,7 @@ def select_grasps(
     poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
     poses[:, 3, 3] = 1.0
     poses = T_task_grid @ poses
-    valid = validness[tuple(index.T)].numpy()
+    valid = valid.numpy()
     index_np = index.numpy()
     return [
         Grasp(pose=poses[n], score_n=float(scores[n]), validness=float(valid[n]), voxel_index=tuple(int(v) for v in index_np[n]))

@@ -85,13 +85,16 @@ class GraspNet(nn.Module):
         Same result as rotation_channels(features)[0, :, i, j, k], computed only on
         the N 5x5x5 neighbourhoods that are needed (in float32).
         """
-        w, b = self.head_rotation.weight, self.head_rotation.bias
-        k = w.shape[-1]
-        padded = F.pad(features[0:1].float(), (k // 2,) * 6)
-        patches = padded.unfold(2, k, 1).unfold(3, k, 1).unfold(4, k, 1)[0]
-        i, j, l = index.unbind(-1)
-        patches = patches[:, i, j, l]  # (16, N, k, k, k)
-        return torch.einsum("cnxyz,ocxyz->no", patches, w.float()) + b.float()
+        return _conv_at(self.head_rotation, features, index)
+
+    def score_and_validness_at(self, features, index):
+        """(score_n (N,), validness_logit (N,)) at voxels `index`, in float32.
+
+        Lets a bf16 pass be re-scored exactly where it matters (the shortlist), so
+        ranking is not decided by bf16's 8-bit mantissa.
+        """
+        out = _conv_at(self.head_score_validness, features, index)
+        return F.softplus(out[:, 0]) * self.score_scale_n, out[:, 1]
 
     def forward(self, x):
         """Dense outputs for training: dict of score_n, validness_logit, rotation."""
@@ -102,3 +105,13 @@ class GraspNet(nn.Module):
             "validness_logit": validness_logit,
             "rotation": self.rotation_channels(f),
         }
+
+
+def _conv_at(conv, features, index):
+    """`conv` (odd kernel, stride 1, 'same' padding) evaluated at voxels (N, 3) of item 0, float32."""
+    w, b = conv.weight.float(), conv.bias.float()
+    k = w.shape[-1]
+    padded = F.pad(features[0:1].float(), (k // 2,) * 6)
+    patches = padded.unfold(2, k, 1).unfold(3, k, 1).unfold(4, k, 1)[0]
+    i, j, l = index.unbind(-1)
+    return torch.einsum("cnxyz,ocxyz->no", patches[:, i, j, l], w) + b
