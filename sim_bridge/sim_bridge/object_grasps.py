@@ -158,10 +158,24 @@ def _run_chunk(task, obj):
     X = candidates[task.chunk * task.size:(task.chunk + 1) * task.size]
     factory = task.simulator_factory or GraspSimulator
     sim = factory(obj, settings) if len(X) else None
-    rows = [_outcome_row(sim.evaluate(x), x) for x in X]
+    rows = [_evaluate(sim, x) for x in X]
     meta = dict(n_candidates=len(candidates), mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
                 sim_settings=json.dumps(dataclasses.asdict(settings), sort_keys=True))
     return "ok", (rows, meta)
+
+
+def _evaluate(sim, X):
+    """One grasp; a simulation that raises is a failed grasp with the error as its
+    reason (deterministic, so retrying would fail again and block the object)."""
+    try:
+        return _outcome_row(sim.evaluate(X), X)
+    except Exception as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        return dict(X_object_tcp_candidate=np.asarray(X, np.float32), X_object_tcp=np.asarray(X, np.float32),
+                    scores_n=np.zeros(6, np.float32), departed=np.zeros(6, bool),
+                    mode=np.uint8(MODE_NAMES.index("none")), grasped=False, contacts=np.uint16(0),
+                    finger_joint_angles={}, reason=f"simulation error: {type(e).__name__}: {first}",
+                    wall_time_s=np.float32(0.0))
 
 
 def _outcome_row(outcome, X_candidate):
@@ -218,6 +232,10 @@ class ObjectStageStore:
         atomic_files.save_json(self.skip_path(source.name), dict(name=source.name, source_kind=source.kind,
                                                                  source=source.source, reason=reason))
         shutil.rmtree(self.parts / source.name, ignore_errors=True)
+        try:
+            self.parts.rmdir()
+        except OSError:
+            pass
 
     def merge_if_complete(self, source: ObjectSource, n_chunks, master_seed, sampling):
         """Merge the chunk files into the object's table once all exist."""
@@ -251,6 +269,10 @@ class ObjectStageStore:
         )
         atomic_files.save_npz(self.table_path(source.name), **table)
         shutil.rmtree(self.parts / source.name, ignore_errors=True)
+        try:
+            self.parts.rmdir()  # only when empty: other objects may still be in progress
+        except OSError:
+            pass
         return True
 
 
