@@ -10,7 +10,7 @@ from robotiq_driver.gripper_registers import (
     GripperState,
     ObjectStatus,
 )
-from robotiq_driver.modbus_rtu import ILLEGAL_DATA_ADDRESS, DeviceException
+from robotiq_driver.gripper_emulator import ILLEGAL_DATA_ADDRESS, DeviceException
 
 
 class Clock:

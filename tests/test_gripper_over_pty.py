@@ -1,12 +1,12 @@
 """The 2F-85 driver against the register emulator, exchanging real Modbus RTU frames
-over a pseudo-terminal; pymodbus stands in as an independent Modbus implementation."""
+over a pseudo-terminal (pymodbus's client in the driver, pymodbus's serial server in
+the emulator), with the line's faults injected between them."""
 import os
 import time
 
 import pytest
 import serial
 
-from robotiq_driver import modbus_rtu as rtu
 from robotiq_driver.gripper_client import (
     GripperConnectionError,
     GripperFault,
@@ -15,6 +15,7 @@ from robotiq_driver.gripper_client import (
 )
 from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
 from robotiq_driver.gripper_registers import COMMAND_ADDRESS, STATUS_ADDRESS, GripperState, ObjectStatus
+from robotiq_driver.modbus_client import ILLEGAL_DATA_ADDRESS, ModbusConnectionError, ModbusTimeout
 from robotiq_driver.pty_modbus_server import PtyModbusServer
 
 
@@ -70,9 +71,10 @@ def test_a_fault_during_motion_is_raised_with_its_meaning(gripper, emulator):
 
 
 def test_pymodbus_reads_and_writes_the_emulator(server, emulator):
+    from pymodbus import FramerType
     from pymodbus.client import ModbusSerialClient
 
-    client = ModbusSerialClient(server.port, baudrate=115200, timeout=1, retries=1)
+    client = ModbusSerialClient(server.port, framer=FramerType.RTU, baudrate=115200, timeout=1, retries=1)
     assert client.connect()
     try:
         close = [0x0900, 0x00FF, 0xFF00]
@@ -91,21 +93,25 @@ def test_pymodbus_reads_and_writes_the_emulator(server, emulator):
         )
         assert GripperState.from_registers(both.registers).requested == 0
         bad = client.read_holding_registers(0x0100, count=2, device_id=9)
-        assert bad.isError() and bad.exception_code == rtu.ILLEGAL_DATA_ADDRESS
+        assert bad.isError() and bad.exception_code == ILLEGAL_DATA_ADDRESS
     finally:
         client.close()
 
 
-def test_silence_to_other_slaves_bad_crc_and_when_unresponsive(server, gripper):
-    wrong = rtu.ModbusRtuClient(gripper._serial, timeout_s=0.05, retries=0, name=server.port)
-    with pytest.raises(rtu.ModbusTimeout, match="no answer from slave 10"):
-        wrong.read_holding_registers(10, STATUS_ADDRESS, 3)
+def test_status_over_function_4_too(server, emulator):
+    with Robotiq2F85(server.port, timeout_s=0.2, status_function=0x04) as g:
+        assert g.activate(timeout_s=3.0).ready
+
+
+def test_corrupted_answers_are_retried_and_silence_is_an_error_within_the_timeout(server, gripper):
     server.corrupt_responses = 1
     gripper.read_state()  # the corrupted answer is retried
     assert gripper.modbus.failed_attempts == 1 and server.corrupt_responses == 0
     server.respond = False
-    with pytest.raises(rtu.ModbusTimeout, match=r"slave 9 .*3 attempts"):
+    start = time.monotonic()
+    with pytest.raises(ModbusTimeout, match=r"slave 9 .*3 attempts"):
         gripper.read_state()
+    assert time.monotonic() - start < 3 * 2 * 0.2 + 0.5  # attempts x (2 x timeout), never a hang
     server.respond = True
     gripper.read_state()
 
@@ -117,20 +123,37 @@ def _wait_for(predicate, timeout_s=5.0):
     return predicate()
 
 
-def test_server_resyncs_after_line_noise(server, gripper):
-    gripper._serial.write(b"\x09\x03\x07")  # a truncated frame, then silence
-    assert _wait_for(lambda: server.dropped_bytes == 3)
-    assert gripper.read_state() is not None
-    gripper._serial.write(bytes.fromhex("09 10 03 E8 00 03 06 00 00 00 00 00 00 00 00"))  # bad CRC
-    assert _wait_for(lambda: server.crc_errors == 1)
-    assert gripper.read_state() is not None
-    assert server.dropped_bytes == 3 + 15 and gripper.modbus.failed_attempts == 0
+def test_line_noise_costs_at_most_a_retry(server, gripper):
+    with serial.Serial(server.tty_name, 115200, timeout=0.2) as noise:  # a second writer on the line
+        noise.write(b"\x09\x03\x07")  # a truncated frame
+        noise.write(bytes.fromhex("09 10 03 E8 00 03 06 01 00 00 00 00 00 00 00"))  # rACT=1, bad CRC
+    for _ in range(3):
+        assert gripper.read_state() is not None
+    assert gripper.modbus.failed_attempts <= 1
+    assert not gripper.read_state().activated  # the bad-CRC write was not executed
 
 
 def test_broadcast_write_is_executed_without_an_answer(server, emulator, gripper):
-    rtu.ModbusRtuClient(gripper._serial).write_registers(0, COMMAND_ADDRESS, [0x0100, 0, 0])
+    gripper.modbus.write_registers(0, COMMAND_ADDRESS, [0x0100, 0, 0])
     assert _wait_for(lambda: emulator.command.activate)
-    assert gripper._serial.in_waiting == 0
+    assert gripper.read_state() is not None  # no stray answer confuses the next call
+
+
+def test_port_vanishing_mid_move_then_returning(server, gripper, emulator):
+    gripper.activate(timeout_s=3.0)
+    requested = gripper.move(0.0, speed_mps=0.050, force_n=40.0)  # 0.8 s to the object
+    server.unplug()
+    start = time.monotonic()
+    with pytest.raises(ModbusConnectionError, match="could not be reopened"):
+        gripper.wait(timeout_s=3.0, requested=requested)
+    assert time.monotonic() - start < 1.0
+    assert emulator.state.moving  # the gripper carries on without its master
+    server.replug()
+    final = gripper.wait(timeout_s=3.0, requested=requested)  # same driver, port reopened
+    assert final.object_status == ObjectStatus.CONTACT_CLOSING
+    server.unplug()
+    server.replug()  # replugged between two calls: the next call does not even fail
+    assert gripper.read_state().object_detected
 
 
 def test_port_errors_say_what_to_check(server, gripper, tmp_path):
@@ -145,8 +168,8 @@ def test_symlink_is_removed_on_stop(emulator, tmp_path):
     link = tmp_path / "ttyX"
     srv = PtyModbusServer(emulator, link_path=str(link)).start()
     assert link.is_symlink()
-    with serial.Serial(str(link), 115200, timeout=0.2) as port:
-        assert rtu.ModbusRtuClient(port).read_holding_registers(9, STATUS_ADDRESS, 3)
+    with Robotiq2F85(str(link)) as g:
+        assert g.read_state() is not None
     srv.stop()
     assert not link.exists() and not link.is_symlink()
 

@@ -1,8 +1,23 @@
-"""Modbus RTU framing, checked byte for byte against the frames printed in the Robotiq
-2F-85 manual's Modbus RTU example (slave 9)."""
-import pytest
+"""Modbus RTU on the wire: pymodbus's RTU frames, checked byte for byte against the
+frames printed in the Robotiq 2F-85 manual's Modbus RTU example (slave 9), and the
+driver's client (pymodbus underneath) against the emulator's pymodbus server on a pty:
+timeouts, retries, exception responses, a lost port."""
+import time
 
-from robotiq_driver import modbus_rtu as rtu
+import pytest
+from pymodbus.framer import FramerRTU
+from pymodbus.pdu import DecodePDU
+from pymodbus.pdu.register_message import (
+    ReadHoldingRegistersRequest,
+    ReadHoldingRegistersResponse,
+    WriteMultipleRegistersRequest,
+    WriteMultipleRegistersResponse,
+)
+
+from robotiq_driver import modbus_client as mb
+from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
+from robotiq_driver.gripper_registers import COMMAND_ADDRESS, STATUS_ADDRESS
+from robotiq_driver.pty_modbus_server import PtyModbusServer
 
 # Request/response pairs from the manual's example (activation, close, status reads).
 MANUAL_CLEAR_RACT = "09 10 03 E8 00 03 06 00 00 00 00 00 00 73 30"
@@ -21,119 +36,124 @@ def b(hex_text: str) -> bytes:
     return bytes.fromhex(hex_text)
 
 
-def test_requests_match_the_manual_byte_for_byte():
-    assert rtu.write_registers_request(9, 0x03E8, [0, 0, 0]) == b(MANUAL_CLEAR_RACT)
-    assert rtu.write_registers_request(9, 0x03E8, [0x0900, 0x00FF, 0xFFFF]) == b(MANUAL_CLOSE)
-    assert rtu.write_registers_request(9, 0x03E8, [0x0900, 0x0000, 0xFFFF]) == b(MANUAL_OPEN)
-    assert rtu.read_registers_request(9, rtu.READ_HOLDING_REGISTERS, 0x07D0, 1) == b(MANUAL_READ_STATUS_1)
-    assert rtu.read_registers_request(9, rtu.READ_HOLDING_REGISTERS, 0x07D0, 3) == b(MANUAL_READ_STATUS_3)
+def client_framer() -> FramerRTU:
+    return FramerRTU(DecodePDU(False))
 
 
-def test_responses_from_the_manual_decode_to_their_registers():
-    assert rtu.decode_response(b(MANUAL_STATUS_ACTIVATING), b(MANUAL_READ_STATUS_1)) == (0x1100,)
-    assert rtu.decode_response(b(MANUAL_STATUS_ACTIVATED), b(MANUAL_READ_STATUS_1)) == (0x3100,)
-    assert rtu.decode_response(b(MANUAL_STATUS_CLOSING), b(MANUAL_READ_STATUS_3)) == (0x3900, 0x00FF, 0x0E0A)
-    assert rtu.decode_response(b(MANUAL_STATUS_CONTACT), b(MANUAL_READ_STATUS_3)) == (0xB900, 0x00FF, 0xBD00)
-    assert rtu.decode_response(b(MANUAL_WRITE_ACK), b(MANUAL_CLOSE)) == ()
+def test_pymodbus_requests_match_the_manual_byte_for_byte():
+    framer = client_framer()
+
+    def write(values):
+        return framer.buildFrame(WriteMultipleRegistersRequest(address=0x03E8, registers=values, dev_id=9))
+
+    def read(count):
+        return framer.buildFrame(ReadHoldingRegistersRequest(address=0x07D0, count=count, dev_id=9))
+
+    assert write([0, 0, 0]) == b(MANUAL_CLEAR_RACT)
+    assert write([0x0900, 0x00FF, 0xFFFF]) == b(MANUAL_CLOSE)
+    assert write([0x0900, 0x0000, 0xFFFF]) == b(MANUAL_OPEN)
+    assert read(1) == b(MANUAL_READ_STATUS_1)
+    assert read(3) == b(MANUAL_READ_STATUS_3)
 
 
-def test_server_side_decodes_and_answers_like_the_manual():
-    request = rtu.decode_request(b(MANUAL_CLOSE))
-    assert request == rtu.Request(9, 0x10, write_address=0x03E8, values=(0x0900, 0x00FF, 0xFFFF))
-    assert rtu.encode_response(request) == b(MANUAL_WRITE_ACK)
-    read = rtu.decode_request(b(MANUAL_READ_STATUS_3))
-    assert rtu.encode_response(read, [0xB900, 0x00FF, 0xBD00]) == b(MANUAL_STATUS_CONTACT)
+def test_manual_responses_decode_with_pymodbus_and_its_server_frames_match():
+    def decode(frame):
+        used, pdu = client_framer().handleFrame(b(frame), 9, 0)
+        assert used == len(b(frame)) and pdu is not None
+        return pdu
+
+    assert decode(MANUAL_STATUS_ACTIVATING).registers == [0x1100]
+    assert decode(MANUAL_STATUS_ACTIVATED).registers == [0x3100]
+    assert decode(MANUAL_STATUS_CLOSING).registers == [0x3900, 0x00FF, 0x0E0A]
+    assert decode(MANUAL_STATUS_CONTACT).registers == [0xB900, 0x00FF, 0xBD00]
+    assert isinstance(decode(MANUAL_WRITE_ACK), WriteMultipleRegistersResponse)
+    framer = client_framer()
+    contact = ReadHoldingRegistersResponse(registers=[0xB900, 0x00FF, 0xBD00], dev_id=9)
+    assert framer.buildFrame(contact) == b(MANUAL_STATUS_CONTACT)
+    assert framer.buildFrame(WriteMultipleRegistersResponse(address=0x03E8, count=3, dev_id=9)) == b(MANUAL_WRITE_ACK)
 
 
-def test_frame_lengths_are_known_from_the_header():
-    close = b(MANUAL_CLOSE)
-    assert [rtu.request_length(close[:n]) for n in (1, 6, 7)] == [None, None, len(close)]
-    assert rtu.request_length(b(MANUAL_READ_STATUS_1)[:2]) == 8
-    assert rtu.response_length(b(MANUAL_STATUS_CONTACT)[:3]) == 11
-    assert rtu.response_length(b(MANUAL_WRITE_ACK)[:3]) == 8
-    assert rtu.response_length(rtu.encode_exception(9, 3, 2)[:3]) == 5
-    with pytest.raises(rtu.UnknownFunction):
-        rtu.request_length(b"\x09\x2b")
-
-
-def test_read_write_multiple_round_trip():
-    frame = rtu.read_write_registers_request(9, 0x07D0, 3, 0x03E8, [0x0900, 0x0080, 0xFF10])
-    request = rtu.decode_request(frame)
-    assert request.read_address == 0x07D0 and request.read_count == 3
-    assert request.write_address == 0x03E8 and request.values == (0x0900, 0x0080, 0xFF10)
-    assert rtu.request_length(frame) == len(frame)
-    response = rtu.encode_response(request, [1, 2, 3])
-    assert rtu.decode_response(response, frame) == (1, 2, 3)
-
-
-def test_corruption_and_mismatches_are_reported():
+def test_a_corrupted_frame_is_not_accepted():
     bad = bytearray(b(MANUAL_STATUS_CONTACT))
     bad[5] ^= 0x01
-    with pytest.raises(rtu.ModbusCrcError):
-        rtu.decode_response(bytes(bad), b(MANUAL_READ_STATUS_3))
-    with pytest.raises(rtu.ModbusCrcError):
-        rtu.decode_request(b(MANUAL_CLOSE)[:-1] + b"\x00")
-    other_slave = rtu.with_crc(b"\x0a" + b(MANUAL_STATUS_CONTACT)[1:-2])
-    with pytest.raises(rtu.ModbusFrameError, match="slave 10"):
-        rtu.decode_response(other_slave, b(MANUAL_READ_STATUS_3))
-    # A 1-register answer to a 3-register read must not be accepted.
-    with pytest.raises(rtu.ModbusFrameError, match="expected 6"):
-        rtu.decode_response(b(MANUAL_STATUS_ACTIVATED), b(MANUAL_READ_STATUS_3))
-    with pytest.raises(rtu.ModbusExceptionResponse, match="illegal data address"):
-        rtu.decode_response(rtu.encode_exception(9, 3, rtu.ILLEGAL_DATA_ADDRESS), b(MANUAL_READ_STATUS_3))
+    assert client_framer().handleFrame(bytes(bad), 9, 0)[1] is None
 
 
-def test_invalid_arguments_fail_with_a_reason():
+def test_invalid_arguments_fail_before_the_wire(server):
+    client = mb.ModbusRtuClient(server.port)
     with pytest.raises(ValueError, match="slave address 300"):
-        rtu.read_registers_request(300, 3, 0, 1)
+        client.read_holding_registers(300, STATUS_ADDRESS, 1)
     with pytest.raises(ValueError, match="count 126"):
-        rtu.read_registers_request(9, 3, 0, 126)
+        client.read_holding_registers(9, 0, 126)
     with pytest.raises(ValueError, match="16 bits"):
-        rtu.write_registers_request(9, 0, [70000])
-    with pytest.raises(ValueError, match="not a register read"):
-        rtu.read_registers_request(9, 0x10, 0, 1)
-    with pytest.raises(rtu.DeviceException):
-        rtu.decode_request(rtu.with_crc(bytes([9, 3, 0, 0, 0, 0])))  # zero-register read
+        client.write_registers(9, COMMAND_ADDRESS, [70000])
+    assert server.requests_served == 0
 
 
-class ScriptedPort:
-    """A serial port whose answers are scripted: each write pops the next reply."""
-
-    def __init__(self, replies):
-        self.replies, self.written, self.pending, self.timeout = list(replies), [], b"", None
-
-    def reset_input_buffer(self):
-        self.pending = b""
-
-    def write(self, data):
-        self.written.append(bytes(data))
-        self.pending = self.replies.pop(0) if self.replies else b""
-
-    def read(self, n):
-        out, self.pending = self.pending[:n], self.pending[n:]
-        return out
+# -- the client against the emulator's pymodbus server ------------------------------
 
 
-def test_client_retries_a_corrupted_answer_then_succeeds():
-    corrupted = b(MANUAL_STATUS_CONTACT)[:-1] + b"\x00"
-    port = ScriptedPort([corrupted, b(MANUAL_STATUS_CONTACT)])
-    client = rtu.ModbusRtuClient(port, timeout_s=0.05, retries=1)
-    assert client.read_holding_registers(9, 0x07D0, 3) == (0xB900, 0x00FF, 0xBD00)
-    assert port.written == [b(MANUAL_READ_STATUS_3)] * 2
-    assert client.failed_attempts == 1
+@pytest.fixture
+def server(tmp_path):
+    emulator = GripperEmulator(KinematicFingers(), activation_time_s=0.1)
+    with PtyModbusServer(emulator, link_path=str(tmp_path / "ttyRobotiq")) as srv:
+        yield srv
 
 
-def test_client_gives_up_after_its_retries_with_a_clear_message():
-    port = ScriptedPort([b"", b"", b""])
-    client = rtu.ModbusRtuClient(port, timeout_s=0.02, retries=2, name="/dev/ttyTEST")
-    with pytest.raises(rtu.ModbusTimeout, match=r"slave 9 on /dev/ttyTEST .*3 attempts"):
-        client.read_holding_registers(9, 0x07D0, 3)
-    assert len(port.written) == 3
+@pytest.fixture
+def client(server):
+    c = mb.ModbusRtuClient(server.port, timeout_s=0.2, retries=2)
+    c.connect()
+    yield c
+    c.close()
 
 
-def test_client_does_not_retry_an_exception_response():
-    port = ScriptedPort([rtu.encode_exception(9, 3, rtu.ILLEGAL_DATA_ADDRESS)] * 3)
-    client = rtu.ModbusRtuClient(port, timeout_s=0.05, retries=2)
-    with pytest.raises(rtu.ModbusExceptionResponse):
-        client.read_holding_registers(9, 0x0000, 3)
-    assert len(port.written) == 1
+def test_reads_both_functions_and_writes(client, server):
+    client.write_registers(9, COMMAND_ADDRESS, [0x0100, 0, 0])
+    assert client.read_holding_registers(9, COMMAND_ADDRESS, 3) == (0x0100, 0, 0)
+    assert len(client.read_input_registers(9, STATUS_ADDRESS, 3)) == 3
+    assert client.transactions == 3 and client.failed_attempts == 0
+
+
+def test_a_corrupted_answer_is_retried(client, server):
+    server.corrupt_responses = 1
+    assert len(client.read_holding_registers(9, STATUS_ADDRESS, 3)) == 3
+    assert client.failed_attempts == 1 and server.corrupt_responses == 0
+
+
+def test_a_silent_device_gives_a_clear_error_within_the_timeout(client, server):
+    server.respond = False
+    start = time.monotonic()
+    with pytest.raises(mb.ModbusTimeout, match=r"no answer from slave 9 on .*ttyRobotiq.*3 attempts"):
+        client.read_holding_registers(9, STATUS_ADDRESS, 3)
+    assert time.monotonic() - start < 3 * 2 * 0.2 + 0.5
+    with pytest.raises(mb.ModbusTimeout, match="slave 10"):
+        client.read_holding_registers(10, STATUS_ADDRESS, 3)  # another slave's address: silence
+    server.respond = True
+    assert client.read_holding_registers(9, STATUS_ADDRESS, 3)
+
+
+def test_an_exception_response_is_raised_not_retried(client, server):
+    served = server.requests_served
+    with pytest.raises(mb.ModbusExceptionResponse, match="exception 0x02: illegal data address") as error:
+        client.read_holding_registers(9, 0x0100, 2)
+    assert error.value.code == mb.ILLEGAL_DATA_ADDRESS and error.value.function == 0x03
+    with pytest.raises(mb.ModbusExceptionResponse, match="function 0x10"):
+        client.write_registers(9, STATUS_ADDRESS, [1])  # status registers are read-only
+    assert server.requests_served == served + 2
+
+
+def test_a_vanished_port_is_reported_then_reopened(client, server):
+    assert client.read_holding_registers(9, STATUS_ADDRESS, 3)
+    server.unplug()
+    start = time.monotonic()
+    with pytest.raises(mb.ModbusConnectionError, match="could not be reopened .*No such file"):
+        client.read_holding_registers(9, STATUS_ADDRESS, 3)
+    assert time.monotonic() - start < 1.0
+    server.replug()
+    assert client.read_holding_registers(9, STATUS_ADDRESS, 3)  # same path, new pty
+
+
+def test_a_port_that_will_not_open_says_why(tmp_path, server):
+    with pytest.raises(mb.ModbusConnectionError, match="cannot open serial port .*no-such-tty"):
+        mb.ModbusRtuClient(str(tmp_path / "no-such-tty")).connect()

@@ -2,15 +2,15 @@
 
 Blocking and thread-safe: each Modbus transaction holds a lock, so a status poller and
 a motion request can share one instance. Units at this interface are SI (m, m/s, N);
-counts stay inside.
+counts stay inside. The line is pymodbus's RTU serial client (``modbus_client``): every
+call has a timeout and bounded retries, and a port that fails (adapter unplugged) is
+reopened by path on the next attempt.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-
-import serial
 
 from .gripper_registers import (
     BAUDRATE,
@@ -25,7 +25,7 @@ from .gripper_registers import (
     ObjectStatus,
     fault_text,
 )
-from .modbus_rtu import ModbusRtuClient
+from .modbus_client import ModbusConnectionError, ModbusRtuClient
 
 FAULT_ACTION_DELAYED = 0x05
 
@@ -61,29 +61,34 @@ class Robotiq2F85:
         timeout_s: float = 0.1,
         retries: int = 2,
         scale: GripperScale = GripperScale(),
+        status_function: int = 0x03,
     ):
+        """``status_function``: 0x03 (read holding registers, as the manual's examples)
+        or 0x04 (read input registers); the 2F-85 answers both at 0x07D0."""
         if not 1 <= slave_id <= 247:
             raise ValueError(f"slave_id {slave_id} out of range 1..247 (the 2F-85 ships as 9)")
-        try:
-            # exclusive: a second driver on the same port would interleave frames.
-            self._serial = serial.Serial(
-                port, baudrate, bytesize=8, parity="N", stopbits=1, timeout=timeout_s, exclusive=True
-            )
-        except (serial.SerialException, OSError, ValueError) as error:
-            raise GripperConnectionError(
-                f"cannot open serial port {port!r}: {error}. Check the path (e.g. ls -l /dev/serial/by-id/), "
-                "that your user may open it (dialout group) and that no other program holds it."
-            ) from error
+        if status_function not in (0x03, 0x04):
+            raise ValueError(f"status_function 0x{status_function:02X}: use 0x03 or 0x04")
         self.port = port
         self.slave_id = slave_id
         self.scale = scale
-        self.modbus = ModbusRtuClient(self._serial, timeout_s=timeout_s, retries=retries, name=port)
+        self.status_function = status_function
+        # 8N1 as the 2F-85 ships; the port is opened exclusively (a second driver on the
+        # same port would interleave frames).
+        self.modbus = ModbusRtuClient(port, baudrate=baudrate, timeout_s=timeout_s, retries=retries)
+        try:
+            self.modbus.connect()
+        except ModbusConnectionError as error:
+            raise GripperConnectionError(
+                f"{error}. Check the path (e.g. ls -l /dev/serial/by-id/), "
+                "that your user may open it (dialout group) and that no other program holds it."
+            ) from error
         self._lock = threading.Lock()
         self._last_command = GripperCommand()
 
     def close(self) -> None:
         with self._lock:
-            self._serial.close()
+            self.modbus.close()
 
     def __enter__(self) -> "Robotiq2F85":
         return self
@@ -95,7 +100,10 @@ class Robotiq2F85:
 
     def read_state(self) -> GripperState:
         with self._lock:
-            registers = self.modbus.read_holding_registers(self.slave_id, STATUS_ADDRESS, REGISTER_COUNT)
+            if self.status_function == 0x04:
+                registers = self.modbus.read_input_registers(self.slave_id, STATUS_ADDRESS, REGISTER_COUNT)
+            else:
+                registers = self.modbus.read_holding_registers(self.slave_id, STATUS_ADDRESS, REGISTER_COUNT)
         return GripperState.from_registers(registers)
 
     def write_command(self, command: GripperCommand) -> None:

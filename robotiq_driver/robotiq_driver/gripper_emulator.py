@@ -41,12 +41,21 @@ from .gripper_registers import (
     GripperState,
     ObjectStatus,
 )
-from .modbus_rtu import ILLEGAL_DATA_ADDRESS, DeviceException
 
+ILLEGAL_DATA_ADDRESS = 0x02  # Modbus exception code
 FAULT_ACTION_DELAYED = 0x05
 FAULT_ACTIVATION_BIT = 0x07
 FAULT_RELEASE_IN_PROGRESS = 0x0B
 FAULT_RELEASE_COMPLETED = 0x0F
+
+
+class DeviceException(Exception):
+    """Raised by the register interface to make the Modbus server answer with the
+    exception ``code`` (e.g. 0x02, illegal data address)."""
+
+    def __init__(self, code: int, reason: str = ""):
+        self.code = code
+        super().__init__(reason or f"Modbus exception 0x{code:02X}")
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from std_srvs.srv import Trigger
 
 from .gripper_client import GripperError, Robotiq2F85
 from .gripper_registers import MAJOR_FAULTS, GripperCommand, GripperScale, GripperState, ObjectStatus
-from .modbus_rtu import ModbusError
+from .modbus_client import ModbusError
 
 COMM_ERRORS = (ModbusError, serial.SerialException, OSError)
 

@@ -68,8 +68,13 @@ def save_picture(sim, path: str, title: str):
             ax.add_collection3d(Poly3DCollection(m.triangles, facecolor=c, edgecolor="none", alpha=0.6))
         ax.set_xlim(-0.1, 0.1), ax.set_ylim(-0.1, 0.1), ax.set_zlim(-0.16, 0.04)
         ax.set_box_aspect((1, 1, 1))
+        ax.set_proj_type("ortho")
         ax.view_init(elev=elev, azim=azim)
-        ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.set_zlabel("z (approach) [m]")
+        if k == 0:
+            ax.set_xticks([]), ax.set_ylabel("y [m]")
+        else:
+            ax.set_yticks([]), ax.set_xlabel("x [m]")
+        ax.set_zlabel("z (approach) [m]")
         ax.set_title(f"TCP frame, seen {name}")
     fig.suptitle(title)
     fig.savefig(path, dpi=100)
