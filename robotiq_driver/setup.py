@@ -17,7 +17,7 @@ setup(
     entry_points={
         # Each executable is started as: ros2 run robotiq_driver <name>
         "console_scripts": [
-            "gripper_node = robotiq_driver.gripper_node:main",
+            "gripper = robotiq_driver.gripper_node:main",
             "gripper_emulator = robotiq_driver.pty_gripper_emulator:main",
             "bench_gripper = robotiq_driver.bench_gripper:main",
         ],

@@ -1,4 +1,4 @@
-"""The installed gripper_node as a real process, talking Modbus RTU over a pty to the
+"""The installed gripper node (`ros2 run robotiq_driver gripper`) as a real process, talking Modbus RTU over a pty to the
 2F-85 emulator and DDS to this test."""
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -43,7 +43,7 @@ def test_node_activates_moves_and_reports_over_emulator_process(ros_node, ros_pr
         args=["--link", link, "--object-width-m", "0.04", "--activation-time-s", "0.3"],
     )
     emulator.wait_for_output("serving on")
-    ros_process("robotiq_driver", "gripper_node", params={"port": str(link), "status_rate_hz": 50.0})
+    ros_process("robotiq_driver", "gripper", params={"port": str(link), "status_rate_hz": 50.0})
     seen = Listener(ros_node)
     assert spin_until(ros_node, lambda: seen.last() and seen.last().activated, 20), seen.last()
     assert seen.last().connected and seen.last().position_m == pytest.approx(0.085)
@@ -72,13 +72,17 @@ def test_node_activates_moves_and_reports_over_emulator_process(ros_node, ros_pr
     assert 0 < stopped_at < 135  # short of 85 mm (0 counts), past 40 mm (135 counts)
 
     assert trigger(ros_node, "/gripper/activate").message == "activated"
+    closed = trigger(ros_node, "/gripper/close")  # default speed and force
+    assert closed.success and closed.message == "stopped on an object while closing, at 40.0 mm"
+    opened = trigger(ros_node, "/gripper/open")
+    assert opened.success and opened.message == "reached 85.0 mm, no object"
     assert spin_until(ros_node, lambda: any(d.level == DiagnosticStatus.OK for d in seen.diagnostics), 5)
 
 
 def test_node_reports_faults_and_lost_connection_then_recovers(ros_node, ros_process, tmp_path):
     emulator = GripperEmulator(KinematicFingers(), activation_time_s=0.2)
     with PtyModbusServer(emulator, link_path=str(tmp_path / "tty")) as server:
-        ros_process("robotiq_driver", "gripper_node", params={
+        ros_process("robotiq_driver", "gripper", params={
             "port": server.port, "status_rate_hz": 50.0, "timeout_s": 0.2, "retries": 1,
             "reconnect_period_s": 0.2,
         })
@@ -104,7 +108,7 @@ def test_node_reports_faults_and_lost_connection_then_recovers(ros_node, ros_pro
 
 
 def test_node_without_a_port_keeps_running_and_says_why(ros_node, ros_process, tmp_path):
-    node = ros_process("robotiq_driver", "gripper_node", params={"port": str(tmp_path / "missing")})
+    node = ros_process("robotiq_driver", "gripper", params={"port": str(tmp_path / "missing")})
     seen = Listener(ros_node)
     assert spin_until(ros_node, lambda: seen.diagnostics, 20)
     assert seen.last() is not None and not seen.last().connected
@@ -115,6 +119,6 @@ def test_node_without_a_port_keeps_running_and_says_why(ros_node, ros_process, t
 
 
 def test_node_rejects_an_out_of_range_parameter(ros_process):
-    node = ros_process("robotiq_driver", "gripper_node", params={"slave_id": 300})
+    node = ros_process("robotiq_driver", "gripper", params={"slave_id": 300})
     assert node.wait_exit(30) == 2
     assert "invalid parameter" in node.output() and "slave_id" in node.output()

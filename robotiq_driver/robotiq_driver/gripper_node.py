@@ -1,8 +1,12 @@
 """ROS 2 node for a Robotiq 2F-85 on Modbus RTU.
 
+    ros2 run robotiq_driver gripper --ros-args -p port:=/dev/ttyUSB0
+
 Publishes ``gripper/status`` (gravgrasp_msgs/GripperStatus) at ``status_rate_hz`` and
 ``/diagnostics`` at 1 Hz; serves ``gripper/move`` (gravgrasp_msgs/MoveGripper),
-``gripper/activate`` and ``gripper/stop`` (std_srvs/Trigger). Names are relative, so a
+``gripper/activate``, ``gripper/open``, ``gripper/close`` and ``gripper/stop``
+(std_srvs/Trigger; open and close use ``default_speed_mps`` / ``default_force_n`` and
+answer when the fingers stop). Names are relative, so a
 namespace or remap places them. If the port cannot be opened or the gripper stops
 answering, the node keeps running, publishes ``connected: false`` and reconnects every
 ``reconnect_period_s``.
@@ -71,6 +75,10 @@ class GripperNode(Node):
         self.motion_timeout_s = p("motion_timeout_s", 6.0, _float_param(
             "Longest wait for a motion with wait=true, s (a full stroke at 20 mm/s takes 4.3 s)",
             0.1, 60.0)).value
+        self.default_speed_mps = p("default_speed_mps", 0.1, _float_param(
+            "Finger speed of gripper/open and gripper/close, m/s", 0.020, 0.150)).value
+        self.default_force_n = p("default_force_n", 40.0, _float_param(
+            "Grip force of gripper/open and gripper/close, N", 20.0, 235.0)).value
         self.frame_id = p("frame_id", "robotiq_2f85", ParameterDescriptor(
             description="frame_id of the status messages", read_only=True)).value
         self.scale = GripperScale(
@@ -95,6 +103,8 @@ class GripperNode(Node):
         self.create_service(MoveGripper, "gripper/move", self._move, callback_group=service_group)
         self.create_service(Trigger, "gripper/activate", self._activate, callback_group=service_group)
         self.create_service(Trigger, "gripper/stop", self._stop, callback_group=service_group)
+        self.create_service(Trigger, "gripper/open", self._open, callback_group=service_group)
+        self.create_service(Trigger, "gripper/close", self._close, callback_group=service_group)
         self.get_logger().info(f"Robotiq 2F-85 on {self.port}, slave {self.slave_id}, {rate:g} Hz status")
 
     # -- connection ----------------------------------------------------------------
@@ -203,36 +213,49 @@ class GripperNode(Node):
     # -- services ------------------------------------------------------------------
 
     def _move(self, request: MoveGripper.Request, response: MoveGripper.Response) -> MoveGripper.Response:
+        response.success, response.message, state = self._do_move(
+            request.position_m, request.speed_mps, request.force_n, request.wait
+        )
+        response.status = self._status_msg(state)
+        return response
+
+    def _open(self, request, response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message, _ = self._do_move(
+            self.scale.stroke_m, self.default_speed_mps, self.default_force_n, wait=True
+        )
+        return response
+
+    def _close(self, request, response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message, _ = self._do_move(
+            0.0, self.default_speed_mps, self.default_force_n, wait=True
+        )
+        return response
+
+    def _do_move(self, position_m, speed_mps, force_n, wait) -> tuple[bool, str, GripperState | None]:
+        """Move (and with ``wait`` wait for the fingers to stop): (success, message, state)."""
         gripper = self._gripper
         if gripper is None:
-            response.message = f"gripper not connected on {self.port}: {self._last_error or 'connecting'}"
-            response.status = self._status_msg(None)
-            return response
+            return False, f"gripper not connected on {self.port}: {self._last_error or 'connecting'}", None
         try:
-            requested = gripper.move(request.position_m, request.speed_mps, request.force_n)
-            state = gripper.wait(self.motion_timeout_s, requested) if request.wait else gripper.read_state()
+            requested = gripper.move(position_m, speed_mps, force_n)
+            state = gripper.wait(self.motion_timeout_s, requested) if wait else gripper.read_state()
         except ValueError as error:
-            response.message = f"rejected: {error}"
+            return False, f"rejected: {error}", self._last_state
         except GripperError as error:
-            response.message = str(error)
+            return False, str(error), self._last_state
         except COMM_ERRORS as error:
             self._disconnect(error)
-            response.message = f"communication with the gripper failed: {error}"
+            return False, f"communication with the gripper failed: {error}", None
+        width_mm = self.scale.counts_to_width(state.position) * 1e3
+        if not wait:
+            message = f"moving to {position_m * 1e3:.1f} mm"
+        elif state.object_status == ObjectStatus.CONTACT_CLOSING:
+            message = f"stopped on an object while closing, at {width_mm:.1f} mm"
+        elif state.object_status == ObjectStatus.CONTACT_OPENING:
+            message = f"stopped on an object while opening, at {width_mm:.1f} mm"
         else:
-            response.success = True
-            width_mm = self.scale.counts_to_width(state.position) * 1e3
-            if not request.wait:
-                response.message = f"moving to {request.position_m * 1e3:.1f} mm"
-            elif state.object_status == ObjectStatus.CONTACT_CLOSING:
-                response.message = f"stopped on an object while closing, at {width_mm:.1f} mm"
-            elif state.object_status == ObjectStatus.CONTACT_OPENING:
-                response.message = f"stopped on an object while opening, at {width_mm:.1f} mm"
-            else:
-                response.message = f"reached {width_mm:.1f} mm, no object"
-            response.status = self._status_msg(state)
-            return response
-        response.status = self._status_msg(self._last_state)
-        return response
+            message = f"reached {width_mm:.1f} mm, no object"
+        return True, message, state
 
     def _activate(self, request, response: Trigger.Response) -> Trigger.Response:
         gripper = self._gripper

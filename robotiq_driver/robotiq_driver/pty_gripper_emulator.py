@@ -1,7 +1,7 @@
 """``gripper_emulator``: an emulated 2F-85 answering Modbus RTU on a pseudo-terminal.
 
     ros2 run robotiq_driver gripper_emulator --link /tmp/ttyRobotiq --object-width-m 0.04
-    ros2 run robotiq_driver gripper_node --ros-args -p port:=/tmp/ttyRobotiq
+    ros2 run robotiq_driver gripper --ros-args -p port:=/tmp/ttyRobotiq
 
 Runs until SIGINT/SIGTERM. Not a ROS node: it stands where the gripper's serial cable
 would be. A simulation that needs contact from physics embeds ``GripperEmulator`` with
