@@ -7,8 +7,8 @@ are OBJ, but drops the parts that make the hand underactuated; `add_hand` restor
 - the spring on each spring-link (inner knuckle) joint -> `RevoluteSpring`,
 - one actuator: a torque on each driver joint, the two drivers tied by a coupler
   constraint (the real hand drives both fingers from one motor),
-- the two ``connect`` equalities close each finger's linkage; the parser turns them into
-  ball constraints (SAP only).
+- the two ``connect`` equalities that close each finger's linkage -> ball constraints
+  (SAP only).
 
 Each finger is thus a 2-DOF linkage moved by one torque: with nothing in the way the
 spring keeps the pad parallel (precision); when the proximal links are stopped by an
@@ -98,7 +98,7 @@ def cache_dir() -> pathlib.Path:
 def model_file() -> pathlib.Path:
     """Path of the Drake-ready MJCF, generated on first use (atomic, so parallel workers
     may race safely): OBJ visual meshes, convex-hull OBJ collision meshes."""
-    out = cache_dir() / "robotiq_2f85_v1"
+    out = cache_dir() / "robotiq_2f85_v2"
     xml = out / "2f85.xml"
     if xml.is_file():
         return xml
@@ -126,9 +126,11 @@ def model_file() -> pathlib.Path:
     for tag in ("tendon", "actuator", "option"):
         for e in root.findall(tag):
             root.remove(e)
-    eq = root.find("equality")
-    for e in eq.findall("joint"):
-        eq.remove(e)
+    # The equalities are added in add_hand: the two `connect`s as ball constraints (after
+    # the flange weld is moved: Drake removes joints only while there are no
+    # constraints), the joint coupling as a coupler constraint.
+    for e in root.findall("equality"):
+        root.remove(e)
     for j in root.iter("joint"):
         for a in ("stiffness", "springref"):
             j.attrib.pop(a, None)
@@ -158,18 +160,32 @@ class Hand:
     actuators: tuple
     tcp_frame: object
     geometry_links: dict  # GeometryId -> link name
+    flange_frame: object = None
 
     def driver_angle_rad(self, plant, plant_context) -> float:
         return float(self.driver_joints[0].get_angle(plant_context))
 
 
-def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None) -> Hand:
-    """Add the 2F-85 to `plant` (before Finalize), its flange welded at `X_W_flange`.
+def X_flange_tcp() -> np.ndarray:
+    """TCP pose in the flange frame (4x4): the hand's base frame is turned -90° about the
+    approach axis relative to the flange (Menagerie), the TCP 0.1558 m out."""
+    c, s = 0.0, -1.0  # cos, sin of -90°
+    X = np.eye(4)
+    X[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    X[2, 3] = FLANGE_TO_TCP_M
+    return X
 
-    `proximity_properties` (a ProximityProperties) replaces the parsed contact properties
-    of every hand collision geometry, so hand and object share the paper's parameters.
+
+def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating=False) -> Hand:
+    """Add the 2F-85 to `plant` (before Finalize).
+
+    The flange is welded to the world at `X_W_flange` (4x4 or RigidTransform; default
+    identity), or, with `floating=True`, left free (Drake gives it a floating joint at
+    Finalize; its default pose is `X_W_flange`). `proximity_properties` (a
+    ProximityProperties) replaces the parsed contact properties of every hand collision
+    geometry, so hand and object share the paper's parameters.
     """
-    from pydrake.geometry import GeometryInstance, Role, RoleAssign  # noqa: F401
+    from pydrake.geometry import RoleAssign
     from pydrake.math import RigidTransform
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.tree import FixedOffsetFrame, RevoluteSpring
@@ -177,18 +193,27 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None) -> Hand:
     parser = Parser(plant, scene_graph)
     parser.SetAutoRenaming(True)
     (mi,) = parser.AddModels(str(model_file()))
-    # The parser welds base_mount to the world at identity; move that weld to X_W_flange
-    # by re-posing: simplest is to keep the weld and express everything via X_W_flange.
-    if X_W_flange is not None and not np.allclose(
-        RigidTransform(X_W_flange).GetAsMatrix4(), np.eye(4)
-    ):
-        raise NotImplementedError("the hand flange sits at the world origin")
+    mount = plant.GetBodyByName("base_mount", mi)
+    flange = plant.AddFrame(FixedOffsetFrame("flange", mount.body_frame(),
+                                             RigidTransform([0.0, 0.0, -0.007]), mi))
+    X_W_flange = RigidTransform() if X_W_flange is None else RigidTransform(X_W_flange)
+    # The parser welded base_mount to the world at the model's root (= the flange).
+    weld = plant.GetJointByName("world_welds_to_base_mount", mi)
+    plant.RemoveJoint(weld)
+    if floating:
+        plant.SetDefaultFreeBodyPose(mount, X_W_flange @ RigidTransform([0.0, 0.0, 0.007]))
+    else:
+        plant.WeldFrames(plant.world_frame(), flange, X_W_flange)
 
     for side in ("left", "right"):
         j = plant.GetJointByName(f"{side}_spring_link_joint", mi)
         plant.AddForceElement(
             RevoluteSpring(j, nominal_angle=SPRING_REFERENCE_RAD, stiffness=SPRING_STIFFNESS_NM_PER_RAD)
         )
+        # Menagerie `connect`: the follower origin stays on the coupler point it
+        # coincides with at the zero configuration (p_BQ=None: Drake computes it so).
+        plant.AddBallConstraint(plant.GetBodyByName(f"{side}_follower", mi), np.zeros(3),
+                                plant.GetBodyByName(f"{side}_coupler", mi), None)
     left = plant.GetJointByName("left_driver_joint", mi)
     right = plant.GetJointByName("right_driver_joint", mi)
     acts = tuple(plant.AddJointActuator(f"{j.name()}_motor", j) for j in (left, right))
@@ -200,7 +225,6 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None) -> Hand:
         FixedOffsetFrame("tcp", base.body_frame(), RigidTransform([0.0, 0.0, 0.145]), mi)
     )
 
-    inspector = scene_graph.model_inspector()
     links = {}
     for body_index in plant.GetBodyIndices(mi):
         body = plant.get_body(body_index)
@@ -209,5 +233,4 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None) -> Hand:
             scene_graph.AssignRole(
                 plant.get_source_id(), gid, proximity_properties, RoleAssign.kReplace
             )
-    del inspector
-    return Hand(mi, (left, right), acts, tcp, links)
+    return Hand(mi, (left, right), acts, tcp, links, flange)
