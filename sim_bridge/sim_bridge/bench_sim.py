@@ -65,7 +65,9 @@ def main(argv=None) -> int:
         results = list(ex.map(_job, work))
     total = time.perf_counter() - t0
 
-    print(f"machine_cores={os.cpu_count()} workers={a.workers}")
+    load = os.getloadavg()
+    print(f"machine_cores={os.cpu_count()} workers={a.workers} "
+          f"load_average_1_5min={load[0]:.1f},{load[1]:.1f} (other jobs inflate the times)")
     per = {}
     for mode, dt, rate, walls, modes, scores in results:
         if rate != 400.0 or len(walls) != a.evals:
