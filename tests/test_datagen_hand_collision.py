@@ -50,3 +50,21 @@ def test_batch_and_surface_points():
     Xs = np.stack([np.eye(4), np.eye(4)])
     Xs[1, :3, 3] = [0, 0, 0.05]  # box now sits against the palm
     np.testing.assert_array_equal(hand_collision.collides(Xs, pts), [False, True])
+
+
+def test_shifted_poses_match_the_direct_check():
+    import trimesh
+    rng = np.random.default_rng(0)
+    pts = hand_collision.surface_points(trimesh.creation.cylinder(radius=0.03, height=0.1))
+    q, _ = np.linalg.qr(rng.normal(size=(20, 3, 3)))
+    q *= np.sign(np.linalg.det(q))[:, None, None]
+    X = np.tile(np.eye(4), (20, 1, 1))
+    X[:, :3, :3] = q
+    X[:, :3, 3] = rng.uniform(-0.08, 0.08, (20, 3))
+    offsets = np.linspace(0, 0.06, 7)
+    fast = hand_collision.collides_along_approach(X, pts, offsets, approach_m=0.05, margin_m=0.002)
+    for j, o in enumerate(offsets):
+        Xo = X.copy()
+        Xo[:, :3, 3] += o * X[:, :3, 2]
+        np.testing.assert_array_equal(fast[:, j], hand_collision.collides(Xo, pts, approach_m=0.05, margin_m=0.002))
+    assert fast.any() and not fast.all()

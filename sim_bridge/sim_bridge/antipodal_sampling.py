@@ -120,9 +120,11 @@ def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
     depths = np.arange(0.0, -hand_collision.PALM_FACE_Z_M + 1e-9, settings.depth_step_m)
     found = []
     n_found = 0
+    fruitless = 0
     for _ in range(settings.max_rounds):
-        if n_found >= count:
+        if n_found >= count or fruitless >= 3:  # 3 rounds without a single pose: give up
             break
+        fruitless += 1
         batch = max(64, 2 * (count - n_found))
         a, b, u = antipodal_pairs(mesh, batch * 4, rng, settings)
         if not len(a):
@@ -135,12 +137,8 @@ def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
         z = np.cos(psi) * e1 + np.sin(psi) * e2
         X = _poses((a + b) / 2, u, z)
         # deepest insertion at which the open hand (with its approach) is free
-        n, k = len(X), len(depths)
-        Xd = np.repeat(X, k, axis=0)
-        Xd[:, :3, 3] += np.tile(depths, n)[:, None] * Xd[:, :3, 2]
-        free = ~hand_collision.collides(Xd, obstacles, approach_m=settings.approach_m,
-                                        margin_m=settings.clearance_m)
-        free = free.reshape(n, k)
+        free = ~hand_collision.collides_along_approach(X, obstacles, depths, approach_m=settings.approach_m,
+                                                       margin_m=settings.clearance_m)
         # contiguous free prefix: the hand cannot pass through a collision
         prefix = np.cumprod(free, axis=1).astype(bool)
         n_free = prefix.sum(axis=1)
@@ -164,6 +162,7 @@ def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
                                       margin_m=settings.clearance_m)
         found.append(X[ok])
         n_found += int(ok.sum())
+        fruitless = 0 if ok.any() else fruitless
     if not found:
         return np.zeros((0, 4, 4))
     return np.concatenate(found)[:count]

@@ -112,3 +112,36 @@ def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
             inside = ((q[None] >= boxes[:, None, 0]) & (q[None] <= boxes[:, None, 1])).all(-1)
             hit[k] = inside.any()
     return hit
+
+
+def collides_along_approach(X_world_tcp, points_world, offsets_m, approach_m=0.0, margin_m=0.0):
+    """(N, K) bool: `collides` for each pose shifted by each offset along its own +z.
+
+    The same as calling `collides` on every shifted pose, but the points are moved
+    into each TCP frame once (a shift along z only moves them along z).
+    """
+    X = np.asarray(X_world_tcp, dtype=float).reshape(-1, 4, 4)
+    offsets = np.asarray(offsets_m, dtype=float)
+    boxes = _swept_boxes(approach_m)
+    boxes[:, 0] -= margin_m
+    boxes[:, 1] += margin_m
+    hit = np.zeros((len(X), len(offsets)), dtype=bool)
+    if points_world is None or not len(points_world):
+        return hit
+    P = np.asarray(points_world, dtype=float)
+    lo_all, hi_all = boxes[:, 0].min(0), boxes[:, 1].max(0)
+    radius = np.linalg.norm(np.maximum(np.abs(lo_all), np.abs(hi_all))) + np.abs(offsets).max()
+    for k in range(len(X)):
+        R, t = X[k, :3, :3], X[k, :3, 3]
+        d = P - t
+        q = d[np.einsum("mj,mj->m", d, d) < radius**2] @ R
+        if not len(q):
+            continue
+        # a point inside a box in x, y is hit by offset o iff lo_z <= q_z - o <= hi_z
+        for b, (lo, hi) in enumerate(boxes):
+            inside_xy = ((q[:, :2] >= lo[:2]) & (q[:, :2] <= hi[:2])).all(axis=1)
+            z = q[inside_xy, 2]
+            if not len(z):
+                continue
+            hit[k] |= ((z[None] - offsets[:, None] >= lo[2]) & (z[None] - offsets[:, None] <= hi[2])).any(axis=1)
+    return hit

@@ -62,14 +62,26 @@ class ObjectSource:
                 if not m.is_watertight:
                     raise ObjectError(f"{p.name}: mesh is not watertight; repair it (or give a URDF "
                                       "with a convex-decomposed collision mesh)")
-            return load_mesh_object(self.path, density_kg_m3=self.density_kg_m3 or None)
-        return _procedural(self.proc_count, self.proc_seed)[self.proc_index]
+            spec = load_mesh_object(self.path, density_kg_m3=self.density_kg_m3 or None)
+        else:
+            spec = _procedural(self.proc_count, self.proc_seed)[self.proc_index]
+        _check_parts(spec)
+        return spec
 
     @property
     def source(self):
         if self.kind == "mesh":
             return pathlib.Path(self.path).name
         return f"{self.proc_seed}:{self.proc_count}:{self.proc_index}"
+
+
+def _check_parts(spec):
+    """Drake aborts the whole process (not an exception) on a primitive with a
+    non-positive size, which would take a worker pool down: refuse it here."""
+    for k, part in enumerate(spec.parts):
+        if part.kind != "convex" and not (np.all(np.isfinite(part.size)) and min(part.size) > 0):
+            raise ObjectError(f"{spec.name}: collision part {k} ({part.kind}) has size {tuple(part.size)}; "
+                              "every size must be positive")
 
 
 _PROC_CACHE = {}
