@@ -19,6 +19,7 @@ setup(
         "console_scripts": [
             "gripper = robotiq_driver.gripper_node:main",
             "gripper_emulator = robotiq_driver.pty_gripper_emulator:main",
+            "gripper_cli = robotiq_driver.gripper_cli:main",
             "bench_gripper = robotiq_driver.bench_gripper:main",
         ],
     },

@@ -52,6 +52,16 @@ class GripperTimeout(GripperError):
     """The gripper answered, but did not reach the expected state in time."""
 
 
+def describe_motion_end(state: GripperState, width_m: float) -> str:
+    """How a finished motion ended, in one phrase (gOBJ and the final opening)."""
+    width_mm = width_m * 1e3
+    if state.object_status == ObjectStatus.CONTACT_CLOSING:
+        return f"stopped on an object while closing, at {width_mm:.1f} mm"
+    if state.object_status == ObjectStatus.CONTACT_OPENING:
+        return f"stopped on an object while opening, at {width_mm:.1f} mm"
+    return f"reached {width_mm:.1f} mm, no object"
+
+
 class Robotiq2F85:
     def __init__(
         self,

@@ -33,8 +33,8 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from .gripper_client import GripperError, Robotiq2F85
-from .gripper_registers import MAJOR_FAULTS, GripperCommand, GripperScale, GripperState, ObjectStatus
+from .gripper_client import GripperError, Robotiq2F85, describe_motion_end
+from .gripper_registers import MAJOR_FAULTS, GripperCommand, GripperScale, GripperState
 from .modbus_client import ModbusError
 
 COMM_ERRORS = (ModbusError, serial.SerialException, OSError)
@@ -246,16 +246,9 @@ class GripperNode(Node):
         except COMM_ERRORS as error:
             self._disconnect(error)
             return False, f"communication with the gripper failed: {error}", None
-        width_mm = self.scale.counts_to_width(state.position) * 1e3
         if not wait:
-            message = f"moving to {position_m * 1e3:.1f} mm"
-        elif state.object_status == ObjectStatus.CONTACT_CLOSING:
-            message = f"stopped on an object while closing, at {width_mm:.1f} mm"
-        elif state.object_status == ObjectStatus.CONTACT_OPENING:
-            message = f"stopped on an object while opening, at {width_mm:.1f} mm"
-        else:
-            message = f"reached {width_mm:.1f} mm, no object"
-        return True, message, state
+            return True, f"moving to {position_m * 1e3:.1f} mm", state
+        return True, describe_motion_end(state, self.scale.counts_to_width(state.position)), state
 
     def _activate(self, request, response: Trigger.Response) -> Trigger.Response:
         gripper = self._gripper
