@@ -145,7 +145,8 @@ def driver_torque_nm(grip_force_n: float) -> float:
 class GraspSimulator:
     """One diagram for one object; evaluate many hand poses on it (datagen reuses it)."""
 
-    def __init__(self, obj: ObjectSpec, settings: SimSettings = SimSettings(), mass_kg=None):
+    def __init__(self, obj: ObjectSpec, settings: SimSettings | None = None, mass_kg=None):
+        settings = settings or SimSettings()
         settings.validate()
         self.settings = settings
         builder = DiagramBuilder()
@@ -306,7 +307,7 @@ class GraspSimulator:
             departed=departed, reason=reason)
 
 
-def measure_squeeze_force_n(width_m: float = 0.05, settings: SimSettings = SimSettings()) -> float:
+def measure_squeeze_force_n(width_m: float = 0.05, settings: SimSettings | None = None) -> float:
     """Grip-force calibration: close on a free 0.5 kg box `width_m` wide (along y),
     centred between the pads, and return the settled squeeze force [N]."""
     from .objects import procedural_object
@@ -320,7 +321,7 @@ def measure_squeeze_force_n(width_m: float = 0.05, settings: SimSettings = SimSe
 
 
 def evaluate_grasp(obj: ObjectSpec, X_object_tcp: np.ndarray,
-                   settings: SimSettings = SimSettings(), mass_kg=None) -> GraspOutcome:
+                   settings: SimSettings | None = None, mass_kg=None) -> GraspOutcome:
     """Close the hand on `obj` from TCP pose `X_object_tcp` (4x4, object frame), settle,
     classify the mode and score 6 force ramps. Builds a fresh diagram; use
     `GraspSimulator` to evaluate many poses on one object."""
