@@ -68,6 +68,16 @@ def test_min_score_max_grasps_and_threshold():
     assert select(surface_distance_voxels=30)[0].score_n == 20.0
 
 
+@pytest.mark.parametrize("radius", [0, 1, 2, 6, 45])
+def test_cube_max_equals_max_pool(radius):
+    volume = torch.rand(R, R, R) - 0.5
+    k = 2 * min(radius, R) + 1
+    reference = torch.nn.functional.max_pool3d(volume[None, None], k, stride=1, padding=k // 2)[0, 0] if k <= R else None
+    if reference is None:
+        reference = volume.max().expand(R, R, R)
+    torch.testing.assert_close(detection.cube_max(volume, radius), reference, rtol=0, atol=0)
+
+
 def test_origin_transform_moves_poses():
     T = np.eye(4)
     T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # grid turned 90 deg about z
@@ -95,6 +105,25 @@ def test_rotation_at_equals_dense_head(representation):
         f = net.features(x)
         dense = net.rotation_channels(f)[0][:, index[:, 0], index[:, 1], index[:, 2]].T
         torch.testing.assert_close(net.rotation_at(f, index), dense, atol=1e-5, rtol=1e-4)
+
+
+def test_polyphase_head_on_half_features_equals_dense_head():
+    torch.manual_seed(0)
+    net = networks.GraspNet(score_scale_n=3.0).eval()
+    x = torch.rand(1, 1, R, R, R)
+    with torch.inference_mode():
+        dense_score, dense_logit = net.score_and_validness(net.features(x))
+        half = net.half_features(x)
+        score, logit = net.score_and_validness_from_half(half)
+        index = torch.tensor([[0, 0, 0], [39, 39, 39], [7, 30, 2], [1, 38, 20]])
+        at_score, at_logit = net.score_and_validness_at(half, index, half=True)
+        rot_half = net.rotation_at(half, index, half=True)
+        rot_full = net.rotation_at(net.features(x), index)
+    torch.testing.assert_close(score, dense_score, atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(logit, dense_logit, atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(at_score, dense_score[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(at_logit, dense_logit[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(rot_half, rot_full, atol=1e-5, rtol=1e-4)
 
 
 def test_score_and_validness_at_equals_dense_head():

@@ -58,6 +58,10 @@ class GraspNet(nn.Module):
 
     def features(self, x):
         """(B, 1, R, R, R) grid -> (B, 16, R, R, R) features shared by all heads."""
+        return F.interpolate(self.half_features(x), size=self.resolution)
+
+    def half_features(self, x):
+        """The decoder output before its last nearest 2x upsampling: (B, 16, R/2, R/2, R/2)."""
         r = self.resolution
         x = F.relu(self.enc1(x))
         x = F.relu(self.enc2(x))
@@ -66,8 +70,24 @@ class GraspNet(nn.Module):
         x = F.interpolate(x, size=r // 4)
         x = F.relu(self.dec2(x))
         x = F.interpolate(x, size=r // 2)
-        x = F.relu(self.dec3(x))
-        return F.interpolate(x, size=r)
+        return F.relu(self.dec3(x))
+
+    def score_and_validness_from_half(self, half):
+        """score_and_validness(features) computed from half_features, ~4.6x fewer MACs.
+
+        The full-resolution features are a nearest 2x upsampling, so the 5^3 head conv
+        on them equals, for each of the 8 output parities, a 3^3 conv on the half grid
+        whose taps are sums of the 5^3 taps that read the same coarse voxel. One
+        16 -> 2x8 conv then a parity shuffle gives the same numbers.
+        """
+        conv = self.head_score_validness
+        w = _polyphase_weights(conv.weight)  # (O*8, C, 3, 3, 3)
+        y = F.conv3d(half, w.to(half.dtype), conv.bias.repeat_interleave(8).to(half.dtype), padding=1)
+        b, n = y.shape[0], y.shape[2]
+        out_channels = conv.weight.shape[0]
+        y = y.reshape(b, out_channels, 2, 2, 2, n, n, n).permute(0, 1, 5, 2, 6, 3, 7, 4)
+        out = y.reshape(b, out_channels, 2 * n, 2 * n, 2 * n)
+        return F.softplus(out[:, 0].float()) * self.score_scale_n, out[:, 1].float()
 
     def score_and_validness(self, features):
         """-> (score_n, validness_logit), each (B, R, R, R)."""
@@ -79,21 +99,22 @@ class GraspNet(nn.Module):
         """Dense rotation channels (B, C, R, R, R), for training."""
         return self.head_rotation(features)
 
-    def rotation_at(self, features, index):
+    def rotation_at(self, features, index, half=False):
         """Rotation channels (N, C) at voxels `index` (N, 3) of batch item 0.
 
         Same result as rotation_channels(features)[0, :, i, j, k], computed only on
-        the N 5x5x5 neighbourhoods that are needed (in float32).
+        the N 5x5x5 neighbourhoods that are needed (in float32). half=True: `features`
+        are half_features (the full ones are their nearest 2x upsampling).
         """
-        return _conv_at(self.head_rotation, features, index)
+        return _conv_at(self.head_rotation, features, index, half)
 
-    def score_and_validness_at(self, features, index):
+    def score_and_validness_at(self, features, index, half=False):
         """(score_n (N,), validness_logit (N,)) at voxels `index`, in float32.
 
         Lets a bf16 pass be re-scored exactly where it matters (the shortlist), so
         ranking is not decided by bf16's 8-bit mantissa.
         """
-        out = _conv_at(self.head_score_validness, features, index)
+        out = _conv_at(self.head_score_validness, features, index, half)
         return F.softplus(out[:, 0]) * self.score_scale_n, out[:, 1]
 
     def forward(self, x):
@@ -107,11 +128,40 @@ class GraspNet(nn.Module):
         }
 
 
-def _conv_at(conv, features, index):
-    """`conv` (odd kernel, stride 1, 'same' padding) evaluated at voxels (N, 3) of item 0, float32."""
-    w, b = conv.weight.float(), conv.bias.float()
-    k = w.shape[-1]
-    padded = F.pad(features[0:1].float(), (k // 2,) * 6)
-    patches = padded.unfold(2, k, 1).unfold(3, k, 1).unfold(4, k, 1)[0]
-    i, j, l = index.unbind(-1)
-    return torch.einsum("cnxyz,ocxyz->no", patches[:, i, j, l], w) + b
+def _polyphase_weights(weight):
+    """(O, C, 5, 5, 5) taps on a 2x nearest-upsampled grid -> (O*8, C, 3, 3, 3) on the
+    half grid; output channel o*8 + 4 px + 2 py + pz is output o at parity (px, py, pz)."""
+    # Along one axis, fine tap t in -2..2 at parity p reads coarse offset floor((p + t) / 2).
+    m = torch.zeros(2, 3, 5, dtype=weight.dtype, device=weight.device)
+    for p in range(2):
+        for t in range(-2, 3):
+            m[p, (p + t) // 2 + 1, t + 2] = 1.0
+    w = torch.einsum("pax,qby,rcz,okxyz->opqrkabc", m, m, m, weight)
+    return w.reshape(weight.shape[0] * 8, weight.shape[1], 3, 3, 3)
+
+
+def _conv_at(conv, features, index, half=False):
+    """`conv` (odd kernel, stride 1, zero 'same' padding) at voxels (N, 3) of item 0, in float32.
+
+    Gathers the N k^3 neighbourhoods straight from `features` in its memory layout
+    (channels-first or channels_last_3d): no padded or converted copy of the volume.
+    half=True: `features` are at half resolution and stand for their nearest 2x upsampling.
+    """
+    w = conv.weight.float()
+    out_channels, channels, k = w.shape[0], w.shape[1], w.shape[-1]
+    scale = 2 if half else 1
+    size = torch.tensor(features.shape[2:]) * scale
+    offsets = torch.arange(k) - k // 2
+    offsets = torch.stack(torch.meshgrid(offsets, offsets, offsets, indexing="ij"), -1).reshape(-1, 3)
+    pos = index[:, None, :] + offsets  # (N, k^3, 3)
+    inside = ((pos >= 0) & (pos < size)).all(-1)
+    pos = torch.div(torch.minimum(pos.clamp_min(0), size - 1), scale, rounding_mode="floor")
+    size = size // scale
+    flat = (pos[..., 0] * size[1] + pos[..., 1]) * size[2] + pos[..., 2]  # (N, k^3)
+    f = features[0]
+    if f.is_contiguous():
+        patches = f.reshape(channels, -1)[:, flat].permute(1, 0, 2)  # (N, C, k^3)
+    else:  # channels_last_3d: (X, Y, Z, C) in memory
+        patches = f.permute(1, 2, 3, 0).reshape(-1, channels)[flat].permute(0, 2, 1)
+    patches = patches.float() * inside[:, None, :]
+    return torch.einsum("nck,ock->no", patches, w.reshape(out_channels, channels, -1)) + conv.bias.float()
