@@ -88,8 +88,8 @@ def test_hydroelastic_and_point_contact_agree_on_a_box():
     point = GraspSimulator(box, SimSettings(time_step_s=2e-3, contact_model="point")).evaluate(at_depth(0.005))
     assert hydro.mode == point.mode == "precision"
     ratio = hydro.scores_n / point.scores_n
-    assert np.all((ratio > 1 / 2) & (ratio < 2)), ratio  # measured: 1.0-1.45
-    assert 1 / 1.6 < hydro.min_score_n / point.min_score_n < 1.6  # measured: 1.24
+    assert np.all((ratio > 1 / 2) & (ratio < 2)), ratio  # measured: 1.0-1.54 (-z)
+    assert 1 / 1.6 < hydro.min_score_n / point.min_score_n < 1.6  # measured: 1.32
 
 
 def test_grip_force_is_calibrated_to_40_newtons():

@@ -157,7 +157,8 @@ class GraspSimulator:
         )
         plant, scene_graph = AddMultibodyPlant(cfg, builder)
         props = proximity_properties(settings)
-        self.hand = hand_model.add_hand(plant, scene_graph, props)
+        self.hand = hand_model.add_hand(plant, scene_graph, props,
+                                        pad_contact_points=settings.contact_model == "point")
         self.object_body = obj.add_to_plant(plant, mass_kg=mass_kg, proximity_properties=props)
         self.object_instance = self.object_body.model_instance()
         self.object = obj if mass_kg is None else obj.with_mass(mass_kg)

@@ -176,7 +176,8 @@ def X_flange_tcp() -> np.ndarray:
     return X
 
 
-def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating=False) -> Hand:
+def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating=False,
+             pad_contact_points=False) -> Hand:
     """Add the 2F-85 to `plant` (before Finalize).
 
     The flange is welded to the world at `X_W_flange` (4x4 or RigidTransform; default
@@ -184,6 +185,11 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
     Finalize; its default pose is `X_W_flange`). `proximity_properties` (a
     ProximityProperties) replaces the parsed contact properties of every hand collision
     geometry, so hand and object share the paper's parameters.
+
+    `pad_contact_points`: for point contact, add a 2 x 4 grid of 2 mm spheres flush
+    with each pad face. Point contact gives one point per geometry pair, so a flat pad
+    on a flat face cannot resist twisting and small boxes spun forever; the grid gives
+    the pad a contact area. (Hydroelastic pads have one already: leave it off.)
     """
     from pydrake.geometry import RoleAssign
     from pydrake.math import RigidTransform
@@ -233,4 +239,17 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
             scene_graph.AssignRole(
                 plant.get_source_id(), gid, proximity_properties, RoleAssign.kReplace
             )
+    if pad_contact_points:
+        from pydrake.geometry import Sphere
+
+        r = 0.002
+        for side in ("left", "right"):
+            pad = plant.GetBodyByName(f"{side}_pad", mi)
+            for i, x in enumerate((-0.009, 0.009)):
+                for j, z in enumerate((0.003, 0.013, 0.0245, 0.0345)):
+                    # pad frame: inner face at y = -6.6 mm, pad spans z 0..37.5 mm
+                    gid = plant.RegisterCollisionGeometry(
+                        pad, RigidTransform([x, -0.0066 + r, z]), Sphere(r),
+                        f"{side}_pad_point_{i}{j}", proximity_properties)
+                    links[gid] = pad.name()
     return Hand(mi, (left, right), acts, tcp, links, flange)
