@@ -206,8 +206,8 @@ class ModbusRtuClient:
                 self.failed_attempts += attempts
                 raise ModbusTimeout(
                     f"no answer from slave {slave} on {self.port} within {self.timeout_s} s "
-                    f"({attempts} attempts; a corrupted answer counts as none): check power, "
-                    "cabling, termination, baud rate and slave id"
+                    f"({attempts} attempt{'s' if attempts > 1 else ''}; a corrupted answer counts as "
+                    "none): check power, cabling, termination, baud rate and slave id"
                 ) from None
             except ModbusException as error:
                 raise ModbusError(f"Modbus failure with slave {slave} on {self.port}: {error}") from error
@@ -220,7 +220,8 @@ class ModbusRtuClient:
             self.transactions += 1
             return response
         raise ModbusConnectionError(
-            f"serial port {self.port} failed and could not be reopened ({attempts} attempts): "
+            f"serial port {self.port} failed and could not be reopened "
+            f"({attempts} attempt{'s' if attempts > 1 else ''}): "
             f"{self._open_error() if not self.client.connected else port_error}. Check the cable and "
             "the USB adapter; the next call tries to reopen it"
         )

@@ -30,6 +30,7 @@ link, as a USB adapter re-enumerating under /dev/serial/by-id does).
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import select
 import threading
@@ -44,6 +45,10 @@ from .gripper_emulator import DeviceException
 from .gripper_registers import COMMAND_ADDRESS, REGISTER_COUNT, STATUS_ADDRESS
 
 BROADCAST_ADDRESS = 0
+
+# pymodbus logs line trouble at WARNING/ERROR; keep it off stderr unless the
+# application configures logging.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 
 class PtyModbusServer:
