@@ -93,7 +93,10 @@ def main(argv=None):
     parser.add_argument("--bag", default=str(ROOT / "tests" / "data" / "tabletop_bag"))
     parser.add_argument("--runs", type=int, default=50)
     parser.add_argument("--max-grasps", type=int, default=20)
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch intra-op threads (the detect node's torch_threads default is 1)")
     args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
     if args.runs < 50:
         parser.error("--runs must be at least 50")
 
@@ -129,7 +132,7 @@ def main(argv=None):
 
         def network():
             with torch.inference_mode(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
-                model.score_and_validness(model.features(x))
+                model.score_and_validness_from_half(model.half_features(x))
 
         results[f"network_{precision}"] = median_ms(network, args.runs)
         print(f"detect_{precision}_median_ms={results[f'detect_{precision}']:.2f}")

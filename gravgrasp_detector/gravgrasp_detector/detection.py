@@ -56,8 +56,9 @@ def resolve_precision(precision):
 
 
 def _prepare(model, precision):
-    # channels_last_3d lets oneDNN run the bf16 convolutions without layout reorders.
-    layout = torch.channels_last_3d if precision == "bf16" else torch.contiguous_format
+    # channels_last_3d routes every conv to oneDNN, in fp32 too (contiguous fp32 3-D
+    # convs fall back to PyTorch's slow_conv3d here), and avoids layout reorders.
+    layout = torch.channels_last_3d
     if getattr(model, "_gravgrasp_layout", None) != layout:
         model.to(memory_format=layout)
         model._gravgrasp_layout = layout
