@@ -90,6 +90,9 @@ def test_hydroelastic_and_point_contact_agree_on_a_box():
     ratio = hydro.scores_n / point.scores_n
     assert np.all((ratio > 1 / 2) & (ratio < 2)), ratio  # measured: 1.0-1.54 (-z)
     assert 1 / 1.6 < hydro.min_score_n / point.min_score_n < 1.6  # measured: 1.32
+    # a small flat pinch settles too (without the pad sphere grid it spun forever)
+    small = procedural_object("box", (0.03, 0.02, 0.03), mass_kg=0.5)
+    assert GraspSimulator(small, SimSettings(contact_model="point")).evaluate(np.eye(4)).grasped
 
 
 def test_grip_force_is_calibrated_to_40_newtons():

@@ -1,7 +1,8 @@
 """`ros2 run sim_bridge bench_sim`: grasp evaluations per hour, both cores busy.
 
 Evaluates power and precision grasps on a Ø65 x 200 mm, 0.5 kg cylinder (the paper's
-test object) with hydroelastic contact at dt 1e-3 and 2e-3, one simulation per worker
+test object) with hydroelastic contact at dt 1e-3 and 2e-3 (and point contact at 2e-3
+for comparison), one simulation per worker
 process (`--workers`, default: all cores), and measures how the score depends on the
 force-ramp rate. Prints `name=value` lines; the last is `grasp_evals_per_hour=<n>` for
 the default settings (hydroelastic, dt 2e-3, half power, half precision).
@@ -31,20 +32,21 @@ def _pose(depth_m, dx_m=0.0):
 def _job(args):
     """One worker: build the diagram once, evaluate `n` grasps (small offsets along the
     cylinder axis so runs are not identical), return per-eval wall times and outcomes."""
-    mode, dt, rate, n = args
+    mode, dt, rate, n, contact = args
     from .grasp_simulation import GraspSimulator, SimSettings
     from .objects import procedural_object
 
     cyl = procedural_object("cylinder", (0.065, 0.2), mass_kg=0.5)
-    sim = GraspSimulator(cyl, SimSettings(time_step_s=dt, force_ramp_rate_n_s=rate))
-    walls, modes, scores = [], [], []
+    sim = GraspSimulator(cyl, SimSettings(time_step_s=dt, force_ramp_rate_n_s=rate, contact_model=contact))
+    walls, cpus, modes, scores = [], [], [], []
     for k in range(n):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         out = sim.evaluate(_pose(DEPTHS_M[mode], 0.002 * k))
         walls.append(time.perf_counter() - t)
+        cpus.append(time.process_time() - c)
         modes.append(out.mode)
         scores.append(out.scores_n)
-    return mode, dt, rate, walls, modes, np.array(scores)
+    return mode, dt, rate, walls, modes, np.array(scores), contact, cpus
 
 
 def main(argv=None) -> int:
@@ -54,12 +56,13 @@ def main(argv=None) -> int:
     p.add_argument("--skip-ramp-rates", action="store_true")
     a = p.parse_args(argv)
 
-    jobs = [(m, dt, 400.0, a.evals) for dt in (1e-3, 2e-3) for m in ("precision", "power")]
+    jobs = [(m, dt, 400.0, a.evals, "hydroelastic") for dt in (1e-3, 2e-3) for m in ("precision", "power")]
+    jobs += [(m, 2e-3, 400.0, a.evals, "point") for m in ("precision", "power")]
     # every worker runs every configuration, so all cores are busy for the whole run
     work = [j for j in jobs for _ in range(a.workers)]
     rates = (200.0, 400.0, 800.0)
     if not a.skip_ramp_rates:
-        work += [(m, 2e-3, r, 1) for m in ("precision", "power") for r in rates]
+        work += [(m, 2e-3, r, 1, "hydroelastic") for m in ("precision", "power") for r in rates]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as ex:
         results = list(ex.map(_job, work))
@@ -69,30 +72,35 @@ def main(argv=None) -> int:
     print(f"machine_cores={os.cpu_count()} workers={a.workers} "
           f"load_average_1_5min={load[0]:.1f},{load[1]:.1f} (other jobs inflate the times)")
     per = {}
-    for mode, dt, rate, walls, modes, scores in results:
+    for mode, dt, rate, walls, modes, scores, contact, cpus in results:
         if rate != 400.0 or len(walls) != a.evals:
             continue
-        per.setdefault((mode, dt), ([], []))
-        per[(mode, dt)][0].extend(walls)
-        per[(mode, dt)][1].extend(modes)
-    for (mode, dt), (walls, modes) in sorted(per.items()):
+        per.setdefault((contact, mode, dt), ([], [], []))
+        per[(contact, mode, dt)][0].extend(walls)
+        per[(contact, mode, dt)][1].extend(modes)
+        per[(contact, mode, dt)][2].extend(cpus)
+    for (contact, mode, dt), (walls, modes, cpus) in sorted(per.items()):
         ok = sum(m == mode for m in modes)
-        s = float(np.mean(walls))
-        print(f"hydro_dt{dt:g}_{mode}_s_per_eval={s:.2f}  ({ok}/{len(modes)} classified {mode})")
-        print(f"hydro_dt{dt:g}_{mode}_evals_per_hour={a.workers * 3600 / s:.0f}")
+        s, c = float(np.mean(walls)), float(np.mean(cpus))
+        name = f"{contact[:5]}_dt{dt:g}_{mode}"
+        print(f"{name}_s_per_eval={s:.2f} cpu_s_per_eval={c:.2f}  ({ok}/{len(modes)} classified {mode})")
+        print(f"{name}_evals_per_hour={a.workers * 3600 / s:.0f}")
     if not a.skip_ramp_rates:
         for mode in ("precision", "power"):
-            by_rate = {r: sc[0] for m, _, r, _, _, sc in results if m == mode and r in rates and len(sc) == 1}
+            by_rate = {r: sc[0] for m, _, r, _, _, sc, c, _ in results
+                       if m == mode and r in rates and len(sc) == 1 and c == "hydroelastic"}
             ref = by_rate[400.0]
             for r in rates:
                 rel = (by_rate[r] - ref) / np.maximum(ref, 1e-9)
                 print(f"ramp_{mode}_{r:.0f}Nps_scores_n={np.round(by_rate[r], 1).tolist()} "
                       f"max_rel_diff_vs_400={np.max(np.abs(rel)):.3f} min_score_n={by_rate[r].min():.1f}")
-    default = [per[(m, 2e-3)][0] for m in ("precision", "power")]
-    s_mix = float(np.mean([np.mean(w) for w in default]))
+    default = [per[("hydroelastic", m, 2e-3)] for m in ("precision", "power")]
+    s_mix = float(np.mean([np.mean(w) for w, _, _ in default]))
+    c_mix = float(np.mean([np.mean(c) for _, _, c in default]))
     per_hour = a.workers * 3600 / s_mix
     lo, hi = PAPER_CORE_HOURS_PER_OBJECT
-    print(f"core_seconds_per_eval={s_mix:.2f}")
+    print(f"core_seconds_per_eval={s_mix:.2f} cpu_seconds_per_eval={c_mix:.2f}")
+    print(f"grasp_evals_per_hour_if_cores_were_ours={a.workers * 3600 / c_mix:.0f}")
     print(f"paper_budget_{lo}-{hi}_core_hours_buys_evals={lo * 3600 / s_mix:.0f}-{hi * 3600 / s_mix:.0f}")
     print(f"bench_wall_s={total:.0f}")
     print(f"grasp_evals_per_hour={per_hour:.0f}")
