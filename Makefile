@@ -5,7 +5,7 @@ SHELL := /bin/bash
 ROS := set +u; source ros_ws/env.sh; set -u;
 PYTEST_ARGS ?=
 
-.PHONY: help setup build test demo lock
+.PHONY: help setup build test demo lock bench-detect bench-sim bench-gripper data-report
 
 help:
 	@echo "make demo   - set up everything and run the main job"
@@ -13,6 +13,10 @@ help:
 	@echo "make setup  - Debian packages, .venv from requirements.lock, colcon build"
 	@echo "make build  - colcon build only (after adding executables or messages)"
 	@echo "make lock   - re-resolve requirements.in into requirements.lock"
+	@echo "make bench-detect  - TSDF->grasps and depth-integration latency (median of 50+)"
+	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
+	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
+	@echo "make data-report   - summary of the committed per-object grasp tables"
 
 setup:
 	@ros_ws/setup.sh
@@ -33,3 +37,15 @@ lock:
 	@rm -rf .venv-lock && python3.11 -m venv .venv-lock && \
 	  .venv-lock/bin/pip install -q -r requirements.in && \
 	  .venv-lock/bin/python ros_ws/write_lock.py requirements.lock && rm -rf .venv-lock
+
+bench-detect: setup
+	@$(ROS) ros2 run gravgrasp_detector bench_detect
+
+bench-sim: setup
+	@$(ROS) ros2 run sim_bridge bench_sim
+
+bench-gripper: setup
+	@$(ROS) ros2 run robotiq_driver bench_gripper
+
+data-report: setup
+	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables

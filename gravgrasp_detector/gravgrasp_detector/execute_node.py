@@ -1,0 +1,208 @@
+"""`ros2 run gravgrasp_detector execute`: serves /execute_grasp.
+
+A thin adapter around grasp_execution.GraspExecutor: it keeps the latest /grasps and
+TSDF volume, reaches the arm through the MoveToPose service (`move_to_pose`, served
+by the sim bridge or a real arm's adapter) and the Robotiq 2F-85 through its serial
+port (robotiq_driver, Modbus RTU).
+
+Safety, because this node moves a real arm: it starts disarmed and refuses motion
+until `~/arm` (std_srvs/SetBool true); any gripper fault or timeout disarms it; a
+`true` on `emergency_stop` (std_msgs/Bool) disarms at once, stops the gripper, and
+aborts the running execution at its next step. Speed, force and workspace limits are
+parameters no request can exceed.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import numpy as np
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor
+from std_msgs.msg import Bool
+from std_srvs.srv import SetBool
+
+from gravgrasp_msgs.msg import GraspArray, TSDFVolume
+from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
+from robotiq_driver.gripper_client import Robotiq2F85
+
+from .arm_reachability import ArmReachability
+from .grasp_execution import Abort, ExecutionLimits, GraspExecutor, Outcome, ResultCode, pose_to_matrix
+from .tsdf_node import VOLUME_QOS
+
+
+def matrix_to_pose(X, pose):
+    from scipy.spatial.transform import Rotation
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in X[:3, 3])
+    x, y, z, w = Rotation.from_matrix(X[:3, :3]).as_quat()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = float(x), float(y), float(z), float(w)
+    return pose
+
+
+class ServiceArm:
+    """grasp_execution.Arm over the MoveToPose service."""
+
+    def __init__(self, node: Node, service: str, frame_id: str):
+        self.node, self.frame_id = node, frame_id
+        self.client = node.create_client(MoveToPose, service, callback_group=ReentrantCallbackGroup())
+
+    def move_to(self, X_task_tcp, speed_mps, timeout_s):
+        if not self.client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
+            return False, f"arm service {self.client.srv_name} is not available (timeout)"
+        request = MoveToPose.Request(speed_mps=float(speed_mps), check_only=False)
+        request.target.header.frame_id = self.frame_id
+        matrix_to_pose(X_task_tcp, request.target.pose)
+        done = threading.Event()
+        future = self.client.call_async(request)
+        future.add_done_callback(lambda _: done.set())
+        if not done.wait(timeout_s):
+            future.cancel()
+            return False, f"arm motion timed out after {timeout_s:.0f} s"
+        response = future.result()
+        return bool(response.success), response.message
+
+
+class ExecuteNode(Node):
+    def __init__(self):
+        super().__init__("execute")
+
+        def param(name, default, description):
+            return self.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+
+        self.task_frame = param("task_frame", "task", "frame grasps must be expressed in (gravity-aligned)")
+        port = param("gripper_port", "/dev/ttyUSB0", "serial port of the Robotiq 2F-85 (Modbus RTU)")
+        slave_id = param("gripper_slave_id", 9, "Modbus slave id of the gripper")
+        baud = param("gripper_baud", 115200, "serial baud rate")
+        arm_service = param("arm_service", "move_to_pose", "MoveToPose service of the arm adapter or sim bridge")
+        base = param("arm_base_xyz_yaw", [0.15, -0.45, 0.0, 0.0],
+                     "arm base pose in the task frame: x, y, z [m], yaw [rad] (UR5e kinematic model)")
+        self.check_ik = param("check_ik", True, "check reachability with the arm's kinematic model")
+        tcp_offset = param("tcp_offset_m", 0.174, "tool flange -> TCP distance along the flange z [m]")
+        defaults = ExecutionLimits()
+        limits = ExecutionLimits(
+            workspace_min_m=tuple(param("workspace_min_m", list(defaults.workspace_min_m), "TCP box min, task frame [m]")),
+            workspace_max_m=tuple(param("workspace_max_m", list(defaults.workspace_max_m), "TCP box max, task frame [m]")),
+            approach_cone_deg=param("approach_cone_deg", defaults.approach_cone_deg,
+                                    "max angle between the approach and straight down [deg]"),
+            max_speed_mps=param("max_speed_mps", defaults.max_speed_mps, "arm TCP speed limit [m/s]"),
+            approach_speed_mps=param("approach_speed_mps", defaults.approach_speed_mps, "approach/lift speed [m/s]"),
+            max_force_n=param("max_force_n", defaults.max_force_n, "gripper force limit [N]"),
+            grip_force_n=param("grip_force_n", defaults.grip_force_n, "gripper closing force [N] (paper: 40)"),
+            grip_speed_mps=param("grip_speed_mps", defaults.grip_speed_mps, "gripper closing speed [m/s]"),
+            pregrasp_distance_m=param("pregrasp_distance_m", defaults.pregrasp_distance_m,
+                                      "default stand-off of the pre-grasp pose [m]"),
+            lift_height_m=param("lift_height_m", defaults.lift_height_m, "lift after closing [m]"),
+            gripper_timeout_s=param("gripper_timeout_s", defaults.gripper_timeout_s, "per gripper motion [s]"),
+            arm_timeout_s=param("arm_timeout_s", defaults.arm_timeout_s, "per arm motion [s]"),
+        )
+        X_task_base = np.eye(4)
+        c, s = np.cos(base[3]), np.sin(base[3])
+        X_task_base[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+        X_task_base[:3, 3] = base[:3]
+        reach = ArmReachability(X_task_base, tcp_offset_m=tcp_offset) if self.check_ik else None
+
+        def gripper():
+            return Robotiq2F85(port, slave_id=slave_id, baudrate=baud)
+
+        self.executor_core = GraspExecutor(ServiceArm(self, arm_service, self.task_frame), gripper, limits,
+                                           reachability=reach, log=self.get_logger().info)
+        if param("armed_at_start", False, "start armed (only for simulation)"):
+            self.executor_core.arm_motion(True)
+        self.latest_grasps = None
+        self.latest_tsdf = None
+        state = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(GraspArray, "grasps", self._on_grasps, 10, callback_group=state)
+        self.create_subscription(TSDFVolume, "tsdf", self._on_tsdf, VOLUME_QOS, callback_group=state)
+        self.create_subscription(Bool, "emergency_stop", self._on_estop, 10, callback_group=ReentrantCallbackGroup())
+        self.create_service(ExecuteGrasp, "execute_grasp", self._on_execute, callback_group=ReentrantCallbackGroup())
+        self.create_service(SetBool, "~/arm", self._on_arm, callback_group=ReentrantCallbackGroup())
+        self.get_logger().info(f"execute ready: gripper on {port}, arm via {arm_service}, "
+                               f"{'armed' if self.executor_core.armed else 'disarmed (call ~/arm)'}")
+
+    def _on_grasps(self, msg):
+        self.latest_grasps = msg
+
+    def _on_tsdf(self, msg):
+        self.latest_tsdf = msg
+
+    def _on_estop(self, msg):
+        if msg.data:
+            self.executor_core.estop()
+            self.get_logger().error("EMERGENCY STOP: executor disarmed, gripper stopped")
+
+    def _on_arm(self, request, response):
+        if request.data and self.executor_core.estopped.is_set():
+            self.get_logger().warn("arming after an emergency stop")
+        response.message = self.executor_core.arm_motion(request.data)
+        response.success = True
+        self.get_logger().info(response.message)
+        return response
+
+    def _tsdf_arrays(self):
+        msg = self.latest_tsdf
+        if msg is None:
+            return None
+        r = int(msg.resolution)
+        o = msg.origin.position
+        return np.asarray(msg.tsdf, np.float32).reshape(r, r, r), float(msg.voxel_size_m), np.array([o.x, o.y, o.z])
+
+    def _on_execute(self, request, response):
+        t0 = time.monotonic()
+        try:
+            outcome, grasp = self._run(request)
+            response.executed_grasp = grasp
+        except Abort as abort:
+            outcome = abort.outcome
+        response.success = outcome.success
+        response.result_code = int(outcome.code)
+        response.message = outcome.message
+        log = self.get_logger().info if outcome.success else self.get_logger().warn
+        log(f"execute_grasp: {outcome.code.name} in {time.monotonic() - t0:.1f} s: {outcome.message}")
+        return response
+
+    def _run(self, request):
+        if request.use_index:
+            grasps = self.latest_grasps
+            if grasps is None or request.grasp_index >= len(grasps.grasps):
+                have = 0 if grasps is None else len(grasps.grasps)
+                raise Abort(ResultCode.INVALID_REQUEST,
+                            f"grasp index {request.grasp_index} is out of range: the latest /grasps has {have}")
+            grasp, frame = grasps.grasps[request.grasp_index], grasps.header.frame_id
+        else:
+            grasp, frame = request.grasp, request.header.frame_id
+        if frame != self.task_frame:
+            raise Abort(ResultCode.INVALID_REQUEST,
+                        f"grasp is in frame {frame!r}; this executor takes grasps in {self.task_frame!r}")
+        p, q = grasp.pose.position, grasp.pose.orientation
+        X = pose_to_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+        return self.executor_core.execute(X, self._tsdf_arrays(), float(grasp.pregrasp_distance_m)), grasp
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = ExecuteNode()
+    except Exception as err:  # bad configuration: one line, non-zero exit
+        print(f"execute: cannot start: {err}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node.executor_core.gripper is not None:
+            node.executor_core.gripper.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

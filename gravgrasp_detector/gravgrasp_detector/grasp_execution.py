@@ -1,0 +1,250 @@
+"""Executing one grasp: checks first, then open, pre-grasp, approach, close, lift, verify.
+
+No ROS here: the executor node (execute_node.py) supplies an `Arm` (moves the TCP
+along straight lines; the sim bridge or a real arm's adapter) and a gripper (the
+Robotiq 2F-85 driver over Modbus RTU) and turns the `Outcome` into the service reply.
+
+Stages and what stops them (result codes are ExecuteGrasp.srv's):
+  validate   finite pose, unit quaternion, task frame           INVALID_REQUEST
+  limits     TCP inside the workspace box, approach within the
+             cone around gravity (down), lift inside the box     UNREACHABLE
+  IK         pre-grasp, grasp, lift reachable by the arm model   UNREACHABLE
+  collision  open hand at pre-grasp, along the approach and at
+             the grasp, against the latest TSDF                   IN_COLLISION
+  open, move to pre-grasp, approach, close, lift                  GRIPPER_FAULT / TIMEOUT / NOT_ARMED
+  verify     closing stopped on an object (gOBJ = 2) and it is
+             still held after the lift (gOBJ stays 2, fingers not
+             closed through)                                      NO_OBJECT / DROPPED
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import threading
+from typing import Callable, Protocol
+
+import numpy as np
+
+from robotiq_driver.gripper_client import GripperError, GripperTimeout
+from robotiq_driver.gripper_registers import ObjectStatus
+from robotiq_driver.modbus_client import ModbusError
+
+from . import hand_clearance
+
+
+class ResultCode(enum.IntEnum):
+    """Same numbers as gravgrasp_msgs/srv/ExecuteGrasp response constants."""
+    SUCCESS = 0
+    INVALID_REQUEST = 1
+    UNREACHABLE = 2
+    IN_COLLISION = 3
+    GRIPPER_FAULT = 4
+    NO_OBJECT = 5
+    DROPPED = 6
+    BUSY = 7
+    TIMEOUT = 8
+    NOT_ARMED = 9
+
+
+@dataclasses.dataclass
+class Outcome:
+    code: ResultCode
+    message: str
+
+    @property
+    def success(self) -> bool:
+        return self.code == ResultCode.SUCCESS
+
+
+class Abort(Exception):
+    def __init__(self, code: ResultCode, message: str):
+        super().__init__(message)
+        self.outcome = Outcome(code, message)
+
+
+@dataclasses.dataclass
+class ExecutionLimits:
+    """Hard limits no request can exceed (node parameters)."""
+    workspace_min_m: tuple = (-0.05, -0.05, 0.0)   # TCP box in the task frame
+    workspace_max_m: tuple = (0.35, 0.35, 0.50)
+    approach_cone_deg: float = 80.0    # max angle between approach (TCP z) and gravity (down)
+    max_speed_mps: float = 0.25        # arm TCP speed cap
+    approach_speed_mps: float = 0.05   # pre-grasp -> grasp
+    max_force_n: float = 235.0         # gripper force cap (2F-85 max)
+    grip_force_n: float = 40.0         # the paper's grasp force
+    grip_speed_mps: float = 0.1
+    pregrasp_distance_m: float = 0.05  # used when the grasp does not suggest one
+    lift_height_m: float = 0.15
+    gripper_timeout_s: float = 5.0
+    arm_timeout_s: float = 20.0
+    closed_width_m: float = 0.003      # fingers this closed after the lift = object lost
+
+
+class Arm(Protocol):
+    def move_to(self, X_task_tcp: np.ndarray, speed_mps: float, timeout_s: float) -> tuple[bool, str]: ...
+
+
+def pose_to_matrix(position, quaternion_xyzw) -> np.ndarray:
+    """Validated pose -> 4x4; raises Abort(INVALID_REQUEST) with the reason."""
+    p = np.asarray(position, float)
+    q = np.asarray(quaternion_xyzw, float)
+    if not (np.isfinite(p).all() and np.isfinite(q).all()):
+        raise Abort(ResultCode.INVALID_REQUEST, "grasp pose has NaN or infinite values: send a finite pose")
+    norm = np.linalg.norm(q)
+    if abs(norm - 1.0) > 1e-3:
+        raise Abort(ResultCode.INVALID_REQUEST,
+                    f"grasp orientation is not a unit quaternion (norm {norm:.4g}): normalise it")
+    x, y, z, w = q / norm
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = R, p
+    return X
+
+
+def plan_poses(X_grasp, pregrasp_distance_m, lift_height_m) -> dict[str, np.ndarray]:
+    """Pre-grasp: back off along -approach; lift: straight up along task z."""
+    pregrasp, lift = X_grasp.copy(), X_grasp.copy()
+    pregrasp[:3, 3] -= pregrasp_distance_m * X_grasp[:3, 2]
+    lift[2, 3] += lift_height_m
+    return {"pregrasp": pregrasp, "grasp": X_grasp, "lift": lift}
+
+
+def check_limits(poses, limits: ExecutionLimits) -> None:
+    lo, hi = np.asarray(limits.workspace_min_m), np.asarray(limits.workspace_max_m)
+    for name, X in poses.items():
+        p = X[:3, 3]
+        if np.any(p < lo) or np.any(p > hi):
+            raise Abort(ResultCode.UNREACHABLE,
+                        f"{name} TCP position {np.round(p, 3).tolist()} m is outside the workspace box "
+                        f"{list(lo)}..{list(hi)} m (parameters workspace_min_m/workspace_max_m)")
+    approach = poses["grasp"][:3, 2]
+    angle = np.degrees(np.arccos(np.clip(-approach[2], -1.0, 1.0)))  # 0 = straight down
+    if angle > limits.approach_cone_deg:
+        raise Abort(ResultCode.UNREACHABLE,
+                    f"approach is {angle:.0f} deg from straight down, beyond the {limits.approach_cone_deg:.0f} deg "
+                    "cone (parameter approach_cone_deg)")
+
+
+class GraspExecutor:
+    """Runs one grasp at a time; `armed` gates every motion, `estop()` disarms."""
+
+    def __init__(self, arm: Arm, gripper_factory: Callable[[], object], limits: ExecutionLimits,
+                 reachability=None, log=print):
+        self.arm = arm
+        self.gripper_factory = gripper_factory  # connects lazily; a replugged gripper reconnects
+        self.gripper = None
+        self.limits = limits
+        self.reachability = reachability
+        self.log = log
+        self.armed = False
+        self.estopped = threading.Event()
+        self._busy = threading.Lock()
+
+    def arm_motion(self, enable: bool) -> str:
+        if enable and self.estopped.is_set():
+            self.estopped.clear()
+        self.armed = enable
+        return "armed: motion allowed" if enable else "disarmed: motion refused"
+
+    def estop(self) -> None:
+        self.estopped.set()
+        self.armed = False
+        if self.gripper is not None:
+            try:
+                self.gripper.stop()
+            except (GripperError, ModbusError):
+                pass
+
+    def execute(self, X_grasp: np.ndarray, tsdf=None, pregrasp_distance_m: float = 0.0) -> Outcome:
+        """Execute, or refuse with BUSY at once if another execution runs."""
+        if not self._busy.acquire(blocking=False):
+            return Outcome(ResultCode.BUSY, "another grasp is being executed; retry when it has finished")
+        try:
+            return self._execute(X_grasp, tsdf, pregrasp_distance_m)
+        except Abort as abort:
+            if abort.outcome.code in (ResultCode.GRIPPER_FAULT, ResultCode.TIMEOUT, ResultCode.NOT_ARMED):
+                self.armed = False  # any fault disarms: a person must look before the next motion
+            return abort.outcome
+        finally:
+            self._busy.release()
+
+    # -- stages ---------------------------------------------------------------------
+
+    def _execute(self, X_grasp, tsdf, pregrasp_distance_m) -> Outcome:
+        lim = self.limits
+        poses = plan_poses(X_grasp, pregrasp_distance_m or lim.pregrasp_distance_m, lim.lift_height_m)
+        check_limits(poses, lim)
+        if self.reachability is not None:
+            reach = self.reachability.check(poses)
+            if not reach.reachable:
+                raise Abort(ResultCode.UNREACHABLE, reach.message)
+        if tsdf is not None:
+            hit = hand_clearance.first_collision(poses, tsdf)
+            if hit:
+                raise Abort(ResultCode.IN_COLLISION, hit)
+        self._require_armed("open the gripper")
+        gripper = self._gripper()
+        self._grip(gripper, 0.085, "opening")
+        self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
+        self._move("grasp", poses["grasp"], lim.approach_speed_mps)
+        closed = self._grip(gripper, 0.0, "closing")
+        if closed.object_status != ObjectStatus.CONTACT_CLOSING:
+            self._move("lift (retreat)", poses["pregrasp"], lim.approach_speed_mps)
+            raise Abort(ResultCode.NO_OBJECT, "the fingers closed on nothing: the grasp missed the object")
+        self._move("lift", poses["lift"], lim.approach_speed_mps)
+        held = self._read(gripper)
+        width = gripper.width_m(held)
+        if held.object_status != ObjectStatus.CONTACT_CLOSING or width <= lim.closed_width_m:
+            return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift (gOBJ={int(held.object_status)}, "
+                                               f"opening {width * 1e3:.1f} mm)")
+        return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, opening {width * 1e3:.1f} mm")
+
+    def _require_armed(self, action):
+        if self.estopped.is_set():
+            raise Abort(ResultCode.NOT_ARMED, f"emergency stop is active: refusing to {action}; "
+                                              "release it and arm again (service ~/arm)")
+        if not self.armed:
+            raise Abort(ResultCode.NOT_ARMED, f"executor is not armed: refusing to {action}; "
+                                              "call the ~/arm service (std_srvs/SetBool true) first")
+
+    def _gripper(self):
+        if self.gripper is None:
+            try:
+                self.gripper = self.gripper_factory()
+                state = self.gripper.read_state()
+                if not state.ready:
+                    self.gripper.activate(timeout_s=self.limits.gripper_timeout_s)
+            except (GripperError, ModbusError, OSError) as err:
+                self.gripper = None
+                raise Abort(ResultCode.GRIPPER_FAULT, f"gripper unavailable: {err}") from None
+        return self.gripper
+
+    def _read(self, gripper):
+        try:
+            return gripper.read_state()
+        except (GripperError, ModbusError) as err:
+            self.gripper = None
+            raise Abort(ResultCode.GRIPPER_FAULT, f"gripper stopped answering: {err}") from None
+
+    def _grip(self, gripper, width_m, what):
+        self._require_armed(what.rstrip("ing") + "e the gripper")
+        force = min(self.limits.grip_force_n, self.limits.max_force_n)
+        try:
+            return gripper.move_and_wait(width_m, self.limits.grip_speed_mps, force,
+                                         timeout_s=self.limits.gripper_timeout_s)
+        except GripperTimeout as err:
+            raise Abort(ResultCode.TIMEOUT, f"gripper {what} did not finish: {err}") from None
+        except (GripperError, ModbusError) as err:
+            self.gripper = None  # reconnect (and re-activate) on the next attempt
+            raise Abort(ResultCode.GRIPPER_FAULT, f"gripper {what} failed: {err}") from None
+
+    def _move(self, name, X, speed_mps):
+        self._require_armed(f"move to the {name} pose")
+        ok, message = self.arm.move_to(X, min(speed_mps, self.limits.max_speed_mps), self.limits.arm_timeout_s)
+        if self.estopped.is_set():
+            raise Abort(ResultCode.NOT_ARMED, f"emergency stop during the move to {name}")
+        if not ok:
+            code = ResultCode.TIMEOUT if "timed out" in message or "timeout" in message else ResultCode.UNREACHABLE
+            raise Abort(code, f"arm could not reach the {name} pose: {message}")

