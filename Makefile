@@ -48,4 +48,4 @@ bench-gripper: setup
 	@$(ROS) ros2 run robotiq_driver bench_gripper
 
 data-report: setup
-	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables
+	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v1

@@ -23,6 +23,7 @@ setup(
             "bag_play = gravgrasp_detector.bag_replay:main",
             "train = gravgrasp_detector.training:main",
             "execute = gravgrasp_detector.execute_node:main",
+            "stack = gravgrasp_detector.stack_node:main",
         ],
     },
 )
