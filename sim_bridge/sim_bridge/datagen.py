@@ -17,6 +17,7 @@ shared path).
 import argparse
 import json
 import sys
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 
@@ -139,6 +140,16 @@ def main(argv=None):
     sc.add_argument("--max-views", type=int, default=6)
 
     args = p.parse_args(argv)
+    try:
+        return _run(p, args)
+    except BrokenProcessPool as e:
+        # a worker process died (out of memory, or a native crash): everything finished
+        # so far is on disk, so the same command resumes
+        print(f"datagen: a worker process died ({e}); rerun the same command to resume", file=sys.stderr)
+        return 3
+
+
+def _run(p, args):
     if args.stage == "objects":
         try:
             sources = _object_sources(args)
