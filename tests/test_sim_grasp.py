@@ -61,11 +61,13 @@ def test_wider_than_stroke_is_not_grasped():
     # just beyond the open fingertips: the fingers close in front of it, nothing held
     beyond = sim.evaluate(at_depth(hand_model.FINGER_LENGTH_M - hand_model.PALM_TO_TCP_M + 0.03 + 0.002))
     assert not beyond.grasped and beyond.mode == "none"
+    assert beyond.reason == "object pushed out of the hand"  # the closing tips knock it away
 
 
 def test_empty_hand_closes_fully(cylinder_sim):
     far = cylinder_sim.evaluate(cylinder_pose(0.5))
     assert not far.grasped and far.contact_links == ()
+    assert "closed on nothing" in far.reason
     assert far.finger_joint_angles["left_driver"] > 0.75  # 0.8 rad = closed stop (pads meet first)
     assert far.finger_joint_angles["right_driver"] == pytest.approx(far.finger_joint_angles["left_driver"], abs=1e-3)
 

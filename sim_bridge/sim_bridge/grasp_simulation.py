@@ -255,20 +255,31 @@ class GraspSimulator:
             return root, "hand collides with the object at the initial pose"
         self.ramp.set_ramp(self.ramp.GetMyContextFromRoot(root), np.zeros(3), 1e9, 0.0)
         self.simulator.Initialize()
-        iv = self.plant.num_positions() + self.hand.driver_joints[0].velocity_start()
+        nq = self.plant.num_positions()
+        iq = self.hand.driver_joints[0].position_start()
+        iv = nq + self.hand.driver_joints[0].velocity_start()
         calm, t = 0, 0.0
         chunk = max(0.02, 5 * s.time_step_s)
         while t < s.max_close_time_s:
             t += chunk
             self.simulator.AdvanceTo(t)
+            x = self.plant.GetPositionsAndVelocities(pc)
             v_obj = self.plant.EvalBodySpatialVelocityInWorld(pc, self.object_body)
             # finger speed at the pads ~ driver rate x 0.1 m lever
-            v_fing = abs(self.plant.GetPositionsAndVelocities(pc)[iv]) * 0.1
+            v_fing = abs(x[iv]) * 0.1
             speed = max(np.linalg.norm(v_obj.translational()),
                         np.linalg.norm(v_obj.rotational()) * 0.03, v_fing)
             calm = calm + 1 if speed < s.settle_speed_m_s else 0
             if calm >= 3 and t > 0.1:
                 return root, ""
+            # Closed on nothing while the object drifts off (gravity-free, nothing stops
+            # it): no need to wait for it.
+            if (x[iq] > hand_model.DRIVER_CLOSED_RAD - 0.06 and v_fing < s.settle_speed_m_s
+                    and not self._contacts(root)):
+                moved = self.plant.EvalBodyPoseInWorld(pc, self.object_body).translation() - X_W_O.translation()
+                if np.linalg.norm(moved) > 0.005:
+                    return root, "object pushed out of the hand"
+                return root, "hand closed on nothing (no contact)"
         return root, "did not settle"
 
     def evaluate(self, X_object_tcp: np.ndarray) -> GraspOutcome:
