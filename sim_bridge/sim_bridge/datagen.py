@@ -97,6 +97,33 @@ def write_object_report(store, sources, errors=None):
     return dict(summary, entries=entries)
 
 
+def sim_settings(overrides=()):
+    """SimSettings with "key=value" overrides (types from the field defaults)."""
+    import dataclasses
+
+    from .grasp_simulation import SimSettings
+
+    fields = {f.name: f for f in dataclasses.fields(SimSettings)}
+    values = {}
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or key not in fields:
+            raise ValueError(f"--sim-setting {item!r}: use KEY=VALUE with KEY one of {', '.join(fields)}")
+        default = fields[key].default
+        try:
+            if isinstance(default, bool):
+                values[key] = text.lower() in ("1", "true", "yes")
+            elif isinstance(default, (int, float)) or default is None:
+                values[key] = float(text) if not isinstance(default, int) or "." in text else int(text)
+            else:
+                values[key] = type(default)(text)
+        except ValueError:
+            raise ValueError(f"--sim-setting {item!r}: {text!r} is not a valid {key}") from None
+    settings = SimSettings(**values)
+    settings.validate()
+    return settings
+
+
 def _object_sources(args):
     sources = []
     for d in args.meshes or []:
@@ -130,6 +157,8 @@ def main(argv=None):
     o.add_argument("--grasps-per-object", type=int, default=64)
     o.add_argument("--chunk-size", type=int, default=8, help="grasps per task (resume granularity)")
     o.add_argument("--limit", type=int, default=0, help="only the first N objects (after sorting)")
+    o.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a grasp_simulation.SimSettings field, e.g. max_close_time_s=4 (repeatable)")
 
     sc = sub.add_parser("scenes", help="scenes with TSDF and voxel labels from grasp tables")
     common(sc)
@@ -157,8 +186,12 @@ def _run(p, args):
             p.error(str(e))
         if not sources:
             p.error("no objects: give --meshes DIR (with .urdf or .obj files) and/or --procedural N")
+        try:
+            settings = sim_settings(args.sim_setting)
+        except ValueError as e:
+            p.error(str(e))
         s = run_object_stage(args.out, sources, args.grasps_per_object, args.seed, args.workers, args.scheduler,
-                             chunk_size=args.chunk_size, progress=not args.no_progress)
+                             chunk_size=args.chunk_size, sim_settings=settings, progress=not args.no_progress)
         print(f"objects: ok={s['ok']} skipped={s['skipped']} error={s['error']} pending={s['pending']} "
               f"(report: {ObjectStageStore(args.out).dir / 'report.json'})")
         return 1 if s["error"] else 0
