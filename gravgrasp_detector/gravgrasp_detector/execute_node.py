@@ -160,8 +160,12 @@ class ExecuteNode(Node):
         response.success = outcome.success
         response.result_code = int(outcome.code)
         response.message = outcome.message
-        log = self.get_logger().info if outcome.success else self.get_logger().warn
-        log(f"execute_grasp: {outcome.code.name} in {time.monotonic() - t0:.1f} s: {outcome.message}")
+        text = f"execute_grasp: {outcome.code.name} in {time.monotonic() - t0:.1f} s: {outcome.message}"
+        # rclpy refuses two severities from one call site, hence two lines.
+        if outcome.success:
+            self.get_logger().info(text)
+        else:
+            self.get_logger().warn(text)
         return response
 
     def _run(self, request):
