@@ -273,8 +273,13 @@ def load_mesh_object(path, mass_kg=None, density_kg_m3=None) -> ObjectSpec:
         visual = _load_mesh(path, what, split=False)[0]
     parts = []
     for p in pieces:
-        hull = p.convex_hull
-        if hull.volume > MIN_PART_VOLUME_M3:
+        try:
+            with np.errstate(invalid="ignore", divide="ignore"):  # flat pieces: 0 volume
+                hull = p.convex_hull
+                volume = hull.volume
+        except Exception:  # qhull rejects degenerate (flat, collinear) point sets
+            continue
+        if volume > MIN_PART_VOLUME_M3:
             parts.append(Part("convex", vertices=np.asarray(hull.vertices)))
     if not parts:
         raise ObjectError(f"{what}: every collision piece has ~zero volume (flat or broken "
