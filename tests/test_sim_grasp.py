@@ -3,6 +3,8 @@
 Each test runs real SAP/hydroelastic simulations (dt 2 ms, ~1-3 s of wall time each).
 """
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -125,3 +127,19 @@ def test_score_does_not_depend_on_the_ramp_rate(cylinder_sim):
             scores[k, rate] = f
     for k in (0, 4):
         assert scores[k, 800.0] == pytest.approx(scores[k, 200.0], rel=0.12), scores
+
+
+VGN_OBJECT = (pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes" / "vgn_train"
+              / "114509277e76e413c8724d5673a063a6.urdf")
+
+
+@pytest.mark.skipif(not VGN_OBJECT.is_file(), reason="shared VGN meshes not present")
+def test_vgn_mesh_object_is_grasped_from_the_top():
+    from sim_bridge.objects import load_mesh_object
+
+    obj = load_mesh_object(VGN_OBJECT)  # 0.15 kg, 45 mm wide, two convex pieces
+    X = np.diag([1.0, -1.0, -1.0, 1.0])  # approach along -z of the object
+    X[2, 3] = obj.collision_mesh().bounds[1, 2] - 0.02  # pads 20 mm below its top
+    out = GraspSimulator(obj, FAST).evaluate(X)
+    assert out.grasped and out.mode == "precision", out
+    assert 5.0 < out.min_score_n < 100.0
