@@ -43,10 +43,10 @@ MODES = ("power", "precision", "none")
 
 @dataclass
 class SimSettings:
-    time_step_s: float = 2e-3
+    time_step_s: float = 2e-3  # fast; scores converge at 1e-3 (use that for labels, README)
     contact_model: str = "hydroelastic"  # or "point"
     grip_force_n: float = 40.0  # squeeze between the pads (calibrated, see README)
-    static_friction: float = 0.75
+    static_friction: float = 0.75  # paper value; SAP ignores it (measured, README)
     dynamic_friction: float = 0.5
     hunt_crossley_dissipation_s_per_m: float = 5.0
     hydroelastic_modulus_pa: float = 1e8
