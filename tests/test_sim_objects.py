@@ -84,6 +84,7 @@ def test_vgn_urdf_loads_with_its_mass_and_convex_pieces():
     body = obj.add_to_plant(plant, mass_kg=0.2)
     plant.Finalize()
     assert plant.CalcTotalMass(plant.CreateDefaultContext(), [body.model_instance()]) == pytest.approx(0.2)
+    assert len(plant.GetCollisionGeometriesForBody(body)) == len(obj.parts)  # paper contact by default
 
 
 def test_random_objects_are_reproducible_and_mostly_graspable():

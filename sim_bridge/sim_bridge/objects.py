@@ -96,12 +96,19 @@ class ObjectSpec:
         """Add as a free rigid body (before Finalize) with its own model instance.
 
         Returns the RigidBody; its body frame is the object frame O. Every part gets a
-        copy of `proximity_properties` with a per-part hydroelastic resolution hint.
+        copy of `proximity_properties` (default: the paper's contact parameters,
+        `grasp_simulation.proximity_properties(SimSettings())`) with a per-part
+        hydroelastic resolution hint.
         """
         from pydrake.geometry import ProximityProperties
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
+        if proximity_properties is None:
+            from .grasp_simulation import SimSettings
+            from .grasp_simulation import proximity_properties as paper_properties
+
+            proximity_properties = paper_properties(SimSettings())
         spec = self if mass_kg is None else self.with_mass(mass_kg)
         name = name or spec.name
         mi = plant.AddModelInstance(name)
@@ -112,11 +119,10 @@ class ObjectSpec:
         for k, part in enumerate(spec.parts):
             X = RigidTransform(part.X_O_P)
             shape = part.drake_shape()
-            if proximity_properties is not None:
-                props = ProximityProperties(proximity_properties)
-                if props.HasProperty("hydroelastic", "resolution_hint"):
-                    props.UpdateProperty("hydroelastic", "resolution_hint", part.resolution_hint_m())
-                plant.RegisterCollisionGeometry(body, X, shape, f"{name}_c{k}", props)
+            props = ProximityProperties(proximity_properties)
+            if props.HasProperty("hydroelastic", "resolution_hint"):
+                props.UpdateProperty("hydroelastic", "resolution_hint", part.resolution_hint_m())
+            plant.RegisterCollisionGeometry(body, X, shape, f"{name}_c{k}", props)
             if spec.visual_mesh_path is None:
                 plant.RegisterVisualGeometry(body, X, shape, f"{name}_v{k}", [0.85, 0.55, 0.2, 1.0])
         if spec.visual_mesh_path is not None:
