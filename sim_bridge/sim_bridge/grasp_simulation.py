@@ -28,7 +28,7 @@ from pydrake.multibody.plant import (
     MultibodyPlantConfig,
 )
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from . import hand_model
 from .disturbance_rejection import (

@@ -14,8 +14,8 @@ Each finger is thus a 2-DOF linkage moved by one torque: with nothing in the way
 spring keeps the pad parallel (precision); when the proximal links are stopped by an
 object the distal link wraps around it (power). Physics alone picks the mode.
 
-Collision geometry is the convex hull of each link mesh (the full palm mesh made a
-power-grasp evaluation 15x slower) plus Menagerie's two pad boxes per finger; the
+Collision geometry is the convex hull of each link mesh (DESIGN.md: the full palm mesh
+made a power-grasp evaluation 15x slower) plus Menagerie's two pad boxes per finger; the
 original meshes are kept as visual geometry.
 
 Frames (all SI units):
@@ -66,9 +66,6 @@ PROXIMAL_LINKS = (
     "right_driver", "right_coupler", "right_spring_link",
 )
 DISTAL_LINKS = ("left_follower", "left_pad", "right_follower", "right_pad")
-
-_MODEL_NAME = "robotiq_2f85"
-
 
 class HandModelError(RuntimeError):
     """The 2F-85 description could not be found or converted."""
