@@ -21,6 +21,7 @@ setup(
             "bench_sim = sim_bridge.bench_sim:main",
             "datagen = sim_bridge.datagen:main",
             "data_report = sim_bridge.data_report:main",
+            "sim = sim_bridge.sim_node:main",
         ],
     },
 )

@@ -1,0 +1,293 @@
+"""``sim``: the Drake sim bridge node, the robot cell the executor drives in CI.
+
+    ros2 run sim_bridge sim --ros-args -p n_objects:=4 -p gripper_link:=/tmp/ttyRobotiqSim
+
+A thin ROS adapter around `sim_world.SimWorld` (see there for the physics):
+
+| name | type | |
+| --- | --- | --- |
+| `depth/image` | sensor_msgs/Image | 32FC1 (m) or 16UC1 (mm), 0 = no return; sensor-data QoS |
+| `depth/camera_info` | sensor_msgs/CameraInfo | pinhole, no distortion; sensor-data QoS |
+| `camera_pose` | geometry_msgs/PoseStamped | T_task_camera (optical frame) in `frame_id`; sensor-data QoS |
+| `object_states` | gravgrasp_msgs/ObjectStates | ground truth (reliable) |
+| `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion of the arm stand-in |
+| `load_scene` | gravgrasp_msgs/LoadScene | new scene (hand back home) |
+| `set_object_mass` | gravgrasp_msgs/SetObjectMass | |
+| `remove_object` | gravgrasp_msgs/RemoveObject | |
+
+The gripper is not a ROS interface: a Robotiq 2F-85 register emulator answers Modbus
+RTU on a pseudo-terminal linked at `gripper_link`, its fingers moved by the simulated
+actuator, so the executor (or robotiq_driver's `gripper` node) talks to it exactly as to
+a real gripper. Once serving, the node logs ``sim ready: gripper on <path>``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+
+import numpy as np
+import rclpy
+from gravgrasp_msgs.msg import ObjectStates
+from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMass
+from geometry_msgs.msg import Pose, PoseStamped
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CameraInfo, Image
+
+from robotiq_driver.gripper_emulator import GripperEmulator
+from robotiq_driver.pty_modbus_server import PtyModbusServer
+
+from .grasp_simulation import SimSettings
+from .sim_world import CameraSettings, RealTimeRunner, SceneConfig, SimWorld, WorldSettings
+
+
+def _desc(text, low=None, high=None, integer=False):
+    d = ParameterDescriptor(description=text, read_only=True)
+    if low is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+    return d
+
+
+def pose_to_matrix(p: Pose) -> np.ndarray:
+    q = p.orientation
+    X = np.eye(4)
+    X[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    X[:3, 3] = [p.position.x, p.position.y, p.position.z]
+    return X
+
+
+def matrix_to_pose(X) -> Pose:
+    p = Pose()
+    p.position.x, p.position.y, p.position.z = (float(v) for v in X[:3, 3])
+    q = Rotation.from_matrix(X[:3, :3]).as_quat()
+    p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = (float(v) for v in q)
+    return p
+
+
+class SimNode(Node):
+    def __init__(self):
+        super().__init__("sim")
+        p = self.declare_parameter
+        seed = p("seed", 0, _desc("seed of the procedural scene (objects and their placement)")).value
+        n_objects = p("n_objects", 3, _desc("objects drawn for the scene", 1, 10, integer=True)).value
+        arrangement = p("arrangement", "packed", _desc("'packed' (upright, side by side) or 'pile' (dropped)")).value
+        mesh_dir = p("mesh_dir", "", _desc("directory of URDF/OBJ objects (e.g. VGN's); '' = procedural primitives")).value
+        mass = p("object_mass_kg", 0.0, _desc("mass of every object, kg; 0 = each object's own", 0.0, 100.0)).value
+        cam_pos = p("camera_position", [0.15, -0.125, 0.526], _desc("camera optical centre [x, y, z] in the task frame, m")).value
+        cam_target = p("camera_target", [0.15, 0.15, 0.05], _desc("point the camera looks at [x, y, z], task frame, m")).value
+        width = p("image_width", 640, _desc("depth image width, px", 16, 4096, integer=True)).value
+        height = p("image_height", 480, _desc("depth image height, px", 16, 4096, integer=True)).value
+        focal = p("focal_length_px", 540.0, _desc("pinhole focal length, px", 10.0, 10000.0)).value
+        self.rate_hz = p("publish_rate_hz", 2.0, _desc("depth, camera info, camera pose and object states rate, Hz", 0.1, 60.0)).value
+        self.encoding = p("depth_encoding", "32FC1", _desc("'32FC1' (metres) or '16UC1' (millimetres), REP-118")).value
+        self.frame_id = p("frame_id", "task", _desc("the task frame: camera pose, object states and move targets are in it")).value
+        self.camera_frame_id = p("camera_frame_id", "sim_camera_optical", _desc("frame_id of the depth image (optical frame)")).value
+        link = p("gripper_link", "/tmp/gravgrasp_sim_gripper", _desc("symlink to the pty where the emulated 2F-85 answers Modbus RTU")).value
+        contact = p("contact_model", "hydroelastic", _desc("'hydroelastic' (paper) or 'point' (~3x faster, less stable)")).value
+        dt = p("time_step_s", 2e-3, _desc("Drake time step, s", 1e-4, 1e-2)).value
+        rt = p("real_time_rate", 1.0, _desc("upper bound of simulated s per wall s", 0.1, 10.0)).value
+        self.default_speed = p("default_speed_mps", 0.1, _desc("TCP speed when a request gives 0, m/s", 0.001, 1.0)).value
+        max_speed = p("max_speed_mps", 0.25, _desc("TCP speed cap, m/s", 0.001, 1.0)).value
+        max_force = p("max_contact_force_n", 60.0, _desc("net contact force on the hand that stops a motion, N", 1.0, 1000.0)).value
+        ws_min = p("workspace_min", [-0.15, -0.15, 0.05], _desc("arm stand-in reach, TCP box minimum [x, y, z], m")).value
+        ws_max = p("workspace_max", [0.45, 0.45, 0.80], _desc("arm stand-in reach, TCP box maximum [x, y, z], m")).value
+
+        if self.encoding not in ("32FC1", "16UC1"):
+            raise ValueError(f"depth_encoding {self.encoding!r}: use '32FC1' or '16UC1'")
+        for name, v in (("camera_position", cam_pos), ("camera_target", cam_target),
+                        ("workspace_min", ws_min), ("workspace_max", ws_max)):
+            if len(v) != 3 or not all(math.isfinite(x) for x in v):
+                raise ValueError(f"{name} must be 3 finite numbers [x, y, z] in metres, got {list(v)}")
+        if link and os.path.exists(link) and not os.path.islink(link):
+            raise ValueError(f"gripper_link {link} exists and is not a symlink; choose another path")
+        settings = WorldSettings(
+            contact=SimSettings(time_step_s=dt, contact_model=contact),
+            camera=CameraSettings(tuple(cam_pos), tuple(cam_target), width, height, focal),
+            workspace_min_m=tuple(ws_min), workspace_max_m=tuple(ws_max),
+            max_speed_mps=max_speed, max_contact_force_n=max_force)
+        scene = SceneConfig(seed=seed, n_objects=n_objects, arrangement=arrangement, mesh_dir=mesh_dir,
+                            object_mass_kg=mass)
+        self.world = SimWorld(scene, settings)
+        self.get_logger().info(f"scene: {', '.join(self.world.object_names()) or 'no object'}")
+
+        self.finger_plant = self.world.finger_plant(advances_time=False)
+        self.emulator = GripperEmulator(plant=self.finger_plant, initial_width_m=self.world.finger_width_m())
+        self.server = PtyModbusServer(self.emulator, link_path=link or None).start()
+        self.runner = RealTimeRunner(self.world, self.finger_plant, real_time_rate=rt).start()
+
+        self.pub_depth = self.create_publisher(Image, "depth/image", qos_profile_sensor_data)
+        self.pub_info = self.create_publisher(CameraInfo, "depth/camera_info", qos_profile_sensor_data)
+        self.pub_pose = self.create_publisher(PoseStamped, "camera_pose", qos_profile_sensor_data)
+        self.pub_states = self.create_publisher(ObjectStates, "object_states", 10)
+        self._render_key = None
+        self._depth = None
+        self.create_timer(1.0 / self.rate_hz, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
+        services = ReentrantCallbackGroup()
+        self.create_service(MoveToPose, "move_to_pose", self._on_move, callback_group=services)
+        self.create_service(LoadScene, "load_scene", self._on_load, callback_group=services)
+        self.create_service(SetObjectMass, "set_object_mass", self._on_set_mass, callback_group=services)
+        self.create_service(RemoveObject, "remove_object", self._on_remove, callback_group=services)
+        self._scene_lock = threading.Lock()
+        self.get_logger().info(f"sim ready: gripper on {self.server.port}")
+
+    def close(self):
+        self.runner.stop()
+        self.server.stop()
+
+    # -- camera and ground truth ------------------------------------------------------
+
+    def _publish(self):
+        if self.runner.error is not None:
+            self.get_logger().error(f"simulation stopped: {self.runner.error}", throttle_duration_sec=5.0)
+        stamp = self.get_clock().now().to_msg()
+        states = self.world.object_states()
+        # The scene only changes when something moves: re-render only then.
+        key = (id(self.world.w), round(self.world.time_s, 4))
+        if key != self._render_key:
+            self._depth = self.world.render_depth()
+            self._render_key = key
+        depth, k, T = self._depth
+        img = Image()
+        img.header.stamp, img.header.frame_id = stamp, self.camera_frame_id
+        img.height, img.width, img.encoding = k.height, k.width, self.encoding
+        if self.encoding == "32FC1":
+            data = depth.astype(np.float32)
+        else:
+            data = np.where(depth > 0, np.clip(np.round(depth * 1000.0), 1, 65535), 0).astype(np.uint16)
+        img.is_bigendian = 0
+        img.step = k.width * data.itemsize
+        img.data = data.tobytes()
+        info = CameraInfo()
+        info.header = img.header
+        info.height, info.width = k.height, k.width
+        info.distortion_model = "plumb_bob"
+        info.d = [0.0] * 5
+        info.k = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
+        info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        info.p = [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        cam = PoseStamped()
+        cam.header.stamp, cam.header.frame_id = stamp, self.frame_id
+        cam.pose = matrix_to_pose(T)
+        msg = ObjectStates()
+        msg.header.stamp, msg.header.frame_id = stamp, self.frame_id
+        msg.sim_time_s = self.world.time_s
+        for s in states:
+            msg.names.append(s.name)
+            msg.poses.append(matrix_to_pose(s.X_task_object))
+            msg.mass_kg.append(s.mass_kg)
+            msg.height_above_table_m.append(s.height_above_table_m)
+            msg.in_hand.append(s.in_hand)
+            msg.lifted.append(s.lifted)
+            msg.out_of_workspace.append(s.out_of_workspace)
+        self.pub_pose.publish(cam)
+        self.pub_info.publish(info)
+        self.pub_depth.publish(img)
+        self.pub_states.publish(msg)
+
+    # -- services -------------------------------------------------------------------
+
+    def _target(self, target: PoseStamped):
+        """4x4 X_task_tcp, or raise ValueError saying what is wrong with the request."""
+        frame = target.header.frame_id
+        if frame not in ("", self.frame_id):
+            raise ValueError(f"target frame {frame!r} is unknown: give the TCP pose in {self.frame_id!r}")
+        p, q = target.pose.position, target.pose.orientation
+        values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("target pose has NaN or infinite values")
+        norm = math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2)
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"target orientation is not a unit quaternion (|q| = {norm:.4f})")
+        return pose_to_matrix(target.pose)
+
+    def _on_move(self, request, response):
+        response.joint_positions = []  # the stand-in has no joints
+        try:
+            X = self._target(request.target)
+        except ValueError as e:
+            response.reachable, response.success, response.message = False, False, f"rejected: {e}"
+            return response
+        speed = float(request.speed_mps)
+        if not math.isfinite(speed) or speed < 0:
+            response.reachable, response.success = False, False
+            response.message = f"rejected: speed_mps {speed} must be >= 0 (0 = default {self.default_speed} m/s)"
+            return response
+        reachable, message = self.world.check_reachable(X)
+        response.reachable = reachable
+        if request.check_only or not reachable:
+            response.success, response.message = False, message
+            return response
+        motion = self.world.start_move(X, speed or self.default_speed)
+        if not motion.done.wait(timeout=motion.duration_s / 0.05 + 10.0):  # even at 5% real time
+            response.success, response.message = False, "motion did not finish: the simulation is stalled"
+            return response
+        response.success, response.message = motion.result
+        return response
+
+    def _on_load(self, request, response):
+        cfg = SceneConfig(seed=int(request.seed), n_objects=int(request.n_objects),
+                          arrangement=request.arrangement or "packed", mesh_dir=request.mesh_dir,
+                          object_mass_kg=float(request.object_mass_kg))
+        try:
+            with self._scene_lock:
+                names = self.world.reset(cfg)
+        except Exception as e:  # bad request or unreadable objects: keep the current scene
+            response.success, response.message = False, f"scene not loaded ({type(e).__name__}: {e}); the previous scene stays"
+            return response
+        response.success, response.object_names = True, names
+        response.message = f"loaded {len(names)} objects"
+        self.get_logger().info(f"scene: {', '.join(names) or 'no object'}")
+        return response
+
+    def _on_set_mass(self, request, response):
+        try:
+            self.world.set_object_mass(request.name, float(request.mass_kg))
+        except (KeyError, ValueError) as e:
+            response.success, response.message = False, str(e).strip("'\"")
+            return response
+        response.success, response.message = True, f"mass of {request.name or 'every object'} = {request.mass_kg} kg"
+        return response
+
+    def _on_remove(self, request, response):
+        try:
+            self.world.remove_object(request.name)
+        except KeyError as e:
+            response.success, response.message = False, str(e).strip("'\"")
+            return response
+        response.success, response.message = True, f"removed {request.name}"
+        return response
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = SimNode()
+    except (ValueError, OSError, RuntimeError) as e:
+        print(f"sim: error: {e}", file=sys.stderr, flush=True)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
