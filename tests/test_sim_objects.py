@@ -95,3 +95,16 @@ def test_random_objects_are_reproducible_and_mostly_graspable():
     assert all(0.03 <= o.mass_kg <= 1.5 for o in a)
     fits = [min(o.collision_mesh().extents) < hand_model.MAX_STROKE_M for o in a]
     assert sum(fits) >= 0.8 * len(a)
+
+
+def test_short_box_with_handle_has_positive_parts():
+    # a 30 mm tall box once gave its handle a negative bar length (Drake aborts on those)
+    obj = procedural_object("box_with_handle", (0.05, 0.05, 0.03), mass_kg=0.2)
+    assert all(min(p.size) > 0 for p in obj.parts)
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+    plant, _ = AddMultibodyPlantSceneGraph(DiagramBuilder(), 0.002)
+    obj.add_to_plant(plant)
+    for seed in range(5):
+        for o in random_procedural_objects(20, seed):
+            assert all(min(p.size) > 0 for p in o.parts if p.kind != "convex"), o.name

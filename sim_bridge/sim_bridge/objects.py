@@ -149,6 +149,11 @@ def _mass_properties(mesh: trimesh.Trimesh, mass_kg, what):
 
 
 def _from_parts(name, parts, mass_kg, density_kg_m3, visual_mesh_path=None) -> ObjectSpec:
+    # Drake aborts the process (no exception) on a non-positive primitive size.
+    for k, part in enumerate(parts):
+        if part.kind != "convex" and not (np.all(np.isfinite(part.size)) and min(part.size) > 0):
+            raise ObjectError(f"{name}: collision part {k} ({part.kind}) has size {tuple(part.size)}; "
+                              "every size must be positive")
     mesh = trimesh.util.concatenate([p.trimesh() for p in parts])
     if mass_kg is None:
         if density_kg_m3 is None:
@@ -163,8 +168,8 @@ def procedural_object(kind: str, dims_m, mass_kg=None, density_kg_m3=None, name=
     """A primitive in its own frame (centred; cylinders and capsules along z).
 
     dims_m: box (x, y, z); cylinder (diameter, length); sphere (diameter,);
-    capsule (diameter, total length); box_with_handle (x, y, z of the box; a 20 mm
-    thick U-handle sticks out 40 mm along +x, spanning 60% of z).
+    capsule (diameter, total length); box_with_handle (x, y, z of the box; a U-handle
+    min(20 mm, z/4) thick sticks out >= 40 mm along +x, spanning 60% of z).
     """
     dims = tuple(float(d) for d in np.atleast_1d(dims_m))
     need = {"box": 3, "cylinder": 2, "sphere": 1, "capsule": 2, "box_with_handle": 3}
@@ -185,7 +190,9 @@ def procedural_object(kind: str, dims_m, mass_kg=None, density_kg_m3=None, name=
         parts = [Part("capsule", (dims[0] / 2, dims[1] - dims[0]))]
     else:
         x, y, z = dims
-        t, reach, span = 0.02, 0.04, 0.6 * z
+        # handle bar thickness shrinks with short boxes so every piece stays positive
+        span = 0.6 * z
+        t, reach = min(0.02, 0.25 * z), max(0.04, 2 * min(0.02, 0.25 * z))
 
         def at(p):
             X = np.eye(4)
