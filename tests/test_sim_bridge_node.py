@@ -1,0 +1,88 @@
+"""The installed sim bridge (`ros2 run sim_bridge sim`) as a real process: camera topics over
+DDS, the arm interface, and the emulated 2F-85 over Modbus RTU on its pty."""
+import math
+import os
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped
+from gravgrasp_msgs.msg import ObjectStates
+from gravgrasp_msgs.srv import LoadScene, MoveToPose, SetObjectMass
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+
+from robotiq_driver.gripper_client import Robotiq2F85
+from ros_testing import call_service, spin_until
+
+
+def target(x, y, z, frame="task", q=(1.0, 0.0, 0.0, 0.0)):
+    """TCP pose; the default quaternion (x, y, z, w) = (1, 0, 0, 0) points the hand down."""
+    msg = PoseStamped()
+    msg.header.frame_id = frame
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = x, y, z
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = q
+    return msg
+
+
+def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
+    link = tmp_path / "ttySimGripper"
+    sim = ros_process("sim_bridge", "sim", params={
+        "n_objects": 1, "seed": 1, "gripper_link": str(link), "publish_rate_hz": 4.0,
+        "depth_encoding": "16UC1"})
+    sim.wait_for_output(r"sim ready: gripper on \S+", timeout_s=90)
+    assert os.path.islink(link)
+
+    got = {}
+    for name, kind, qos in (("depth/image", Image, qos_profile_sensor_data),
+                            ("depth/camera_info", CameraInfo, qos_profile_sensor_data),
+                            ("camera_pose", PoseStamped, qos_profile_sensor_data),
+                            ("object_states", ObjectStates, 10)):
+        ros_node.create_subscription(kind, name, lambda m, n=name: got.__setitem__(n, m), qos)
+    assert spin_until(ros_node, lambda: len(got) == 4, 30), f"received only {sorted(got)}"
+    image, info = got["depth/image"], got["depth/camera_info"]
+    assert (image.encoding, image.width, image.height) == ("16UC1", info.width, info.height)
+    depth_mm = np.frombuffer(bytes(image.data), np.uint16).reshape(image.height, image.width)
+    assert 300 < np.median(depth_mm) < 1500  # the table, 0.3-1.5 m away
+    assert info.k[0] > 0 and info.header.stamp == image.header.stamp
+    assert got["camera_pose"].header.frame_id == "task"
+    states = got["object_states"]
+    assert len(states.names) == 1 and not states.lifted[0] and not states.out_of_workspace[0]
+
+    move = ros_node.create_client(MoveToPose, "move_to_pose")
+
+    def call(pose, speed=0.25, check_only=False):
+        return call_service(ros_node, move, MoveToPose.Request(target=pose, speed_mps=speed,
+                                                               check_only=check_only), timeout_s=60)
+
+    far = call(target(2.0, 0.15, 0.4), check_only=True)
+    assert not far.reachable and not far.success and "outside" in far.message
+    near = call(target(0.15, 0.15, 0.45), check_only=True)
+    assert near.reachable and not near.success
+    moved = call(target(0.15, 0.15, 0.45))
+    assert moved.reachable and moved.success, moved.message
+    nan = call(target(math.nan, 0.15, 0.45))
+    assert not nan.success and "NaN" in nan.message
+    frame = call(target(0.15, 0.15, 0.45, frame="base_link"))
+    assert not frame.success and "frame 'base_link' is unknown" in frame.message
+    skewed = call(target(0.15, 0.15, 0.45, q=(1.0, 1.0, 0.0, 0.0)))
+    assert not skewed.success and "unit quaternion" in skewed.message
+
+    mass = call_service(ros_node, ros_node.create_client(SetObjectMass, "set_object_mass"),
+                        SetObjectMass.Request(name="no_such_object", mass_kg=1.0))
+    assert not mass.success and "no object named 'no_such_object'" in mass.message
+    bad_scene = call_service(ros_node, ros_node.create_client(LoadScene, "load_scene"),
+                             LoadScene.Request(seed=1, n_objects=1, arrangement="heap"), timeout_s=30)
+    assert not bad_scene.success and "arrangement 'heap'" in bad_scene.message
+
+    # the emulated 2F-85, exactly as a real one: nothing between the fingers
+    with Robotiq2F85(str(link)) as gripper:
+        gripper.activate(timeout_s=10.0)
+        state = gripper.move_and_wait(0.0, speed_mps=0.15, force_n=40.0, timeout_s=10.0)
+        assert not state.object_detected and gripper.width_m(state) == pytest.approx(0.0, abs=1e-3)
+        state = gripper.move_and_wait(0.085, speed_mps=0.15, force_n=40.0, timeout_s=10.0)
+        assert gripper.width_m(state) == pytest.approx(0.085, abs=1e-3)
+
+    assert sim.alive()
+    assert sim.stop() == 0
+    assert not os.path.lexists(link)  # the pty link goes with the node
