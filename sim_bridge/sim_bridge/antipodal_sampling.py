@@ -34,6 +34,7 @@ class SamplingSettings:
     max_width_m: float = MAX_WIDTH_M
     width_margin_m: float = 0.005      # keep the pads clear of the surface when open
     deep_fraction: float = 0.5         # share of candidates pushed to the deepest free depth
+    min_depth_m: float = 0.0           # the others: uniform in [min(min_depth_m, deepest), deepest]
     depth_step_m: float = 0.004        # resolution of the deepest-free-depth search
     lateral_sigma_m: float = 0.004     # sideways shift (x, y of the TCP frame)
     tilt_sigma_rad: float = np.deg2rad(8.0)
@@ -148,7 +149,8 @@ def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
             continue
         deepest = depths[n_free - 1]
         deep = rng.uniform(0, 1, len(X)) < settings.deep_fraction
-        depth = np.where(deep, deepest, rng.uniform(0, 1, len(X)) * deepest)
+        shallowest = np.minimum(settings.min_depth_m, deepest)
+        depth = np.where(deep, deepest, shallowest + rng.uniform(0, 1, len(X)) * (deepest - shallowest))
         X[:, :3, 3] += depth[:, None] * X[:, :3, 2]
         # sideways shift and small tilt about a random axis through the TCP
         shift = rng.normal(0, settings.lateral_sigma_m, (len(X), 2))
