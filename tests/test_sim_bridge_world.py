@@ -5,6 +5,7 @@ import pytest
 
 from robotiq_driver.gripper_emulator import GripperEmulator
 from robotiq_driver.gripper_registers import COMMAND_ADDRESS, GripperCommand, ObjectStatus
+from sim_bridge.grasp_simulation import SimSettings
 from sim_bridge.objects import procedural_object
 from sim_bridge.scenes import TABLE_HEIGHT_M
 from sim_bridge.sim_world import R_TOP_DOWN, SceneConfig, SimWorld, WorldSettings, pose
@@ -12,9 +13,10 @@ from sim_bridge.sim_world import R_TOP_DOWN, SceneConfig, SimWorld, WorldSetting
 CENTRE = (0.15, 0.15)
 
 
-def one_object_world(spec, xy=CENTRE):
+def one_object_world(spec, xy=CENTRE, contact_model="hydroelastic"):
     X = pose(p=(*xy, TABLE_HEIGHT_M + spec.collision_mesh().extents[2] / 2 + 0.001))
-    return SimWorld(SceneConfig(objects=((spec, X),)), WorldSettings())
+    return SimWorld(SceneConfig(objects=((spec, X),)),
+                    WorldSettings(contact=SimSettings(contact_model=contact_model)))
 
 
 def close_fingers(plant, width_m=0.085, target_m=0.0, force_n=40.0, max_s=3.0):
@@ -27,9 +29,10 @@ def close_fingers(plant, width_m=0.085, target_m=0.0, force_n=40.0, max_s=3.0):
     raise AssertionError(f"fingers still moving after {max_s} s: {reading}")
 
 
-def test_top_down_grasp_lifts_an_upright_cylinder():
+@pytest.mark.parametrize("contact_model", ["hydroelastic", "point"])
+def test_top_down_grasp_lifts_an_upright_cylinder(contact_model):
     cylinder = procedural_object("cylinder", (0.05, 0.12), mass_kg=0.3)
-    world = one_object_world(cylinder)
+    world = one_object_world(cylinder, contact_model=contact_model)
     (before,) = world.object_states()
     assert before.height_above_table_m == pytest.approx(0.0, abs=2e-3) and not before.in_hand
 
@@ -131,3 +134,19 @@ def test_depth_image_sees_the_object_and_masses_can_change():
         world.set_object_mass(name, 1.0)
     depth_after, _, _ = world.render_depth()
     assert depth_after[int(round(v)), int(round(u))] > p_cam[2] + 0.09  # now the table
+
+
+def test_procedural_scene_is_drawn_settled_and_reloadable():
+    world = SimWorld(SceneConfig(seed=3, n_objects=2, arrangement="packed"), WorldSettings())
+    names = world.object_names()
+    assert 1 <= len(names) <= 2
+    for state in world.object_states():
+        assert abs(state.height_above_table_m) < 0.003, state  # resting on the table
+        assert not state.out_of_workspace and not state.in_hand
+
+    again = world.reset(SceneConfig(seed=3, n_objects=2, arrangement="packed", object_mass_kg=0.7))
+    assert again == names  # same seed, same objects
+    assert [s.mass_kg for s in world.object_states()] == pytest.approx([0.7] * len(names))
+    with pytest.raises(ValueError, match="arrangement"):
+        world.reset(SceneConfig(arrangement="heap"))
+    assert world.object_names() == names  # a bad request leaves the scene alone

@@ -251,8 +251,13 @@ class WorldDiagram:
     mount_body: object  # the hand's floating body (base_mount)
     object_bodies: list
     finger_servo: object
-    hand_geometries: frozenset  # collision GeometryIds of the hand
+    # Geometries by GeometryId *value* (int): pydrake hands out GeometryIds that can
+    # point into a vector the plant later grows (hand_model.Hand.geometry_links had
+    # garbage ids, so the pad boxes were not recognised), so copy the values at once.
+    hand_link_of: dict  # collision geometry id value -> hand link name
+    hand_geometries: frozenset  # collision geometry id values of the hand
     finger_geometries: frozenset
+    hand_bodies: frozenset  # BodyIndex of every hand link
 
 
 def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
@@ -293,9 +298,15 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
     builder.Connect(plant.get_state_output_port(), servo.get_input_port())
     builder.Connect(servo.get_output_port(), plant.get_actuation_input_port())
     diagram = builder.Build()
-    finger = frozenset(g for g, link in hand.geometry_links.items() if link in FINGER_LINKS)
+    link_of = {}
+    for bi in plant.GetBodyIndices(hand.model_instance):
+        body = plant.get_body(bi)
+        for g in plant.GetCollisionGeometriesForBody(body):
+            link_of[g.get_value()] = body.name()
+    finger = frozenset(g for g, link in link_of.items() if link in FINGER_LINKS)
     return WorldDiagram(diagram, plant, scene_graph, hand, plant.GetBodyByName("base_mount", hand.model_instance),
-                        bodies, servo, frozenset(hand.geometry_links), finger)
+                        bodies, servo, link_of, frozenset(link_of), finger,
+                        frozenset(plant.GetBodyIndices(hand.model_instance)))
 
 
 # ----------------------------------------------------------------------------------
@@ -577,8 +588,8 @@ class SimWorld:
             return total
 
     def _hand_contacts(self):
-        """(hand GeometryId, other GeometryId, force on the hand [3] N) per contact
-        between the hand and something else."""
+        """(hand geometry id value, other geometry id value, force on the hand [3] N)
+        per contact between the hand and something else."""
         plant, pc = self.w.plant, self._plant_context()
         results = plant.get_contact_results_output_port().Eval(pc)
         hand_g = self.w.hand_geometries
@@ -587,37 +598,39 @@ class SimWorld:
             info = results.hydroelastic_contact_info(i)
             surf = info.contact_surface()
             f_M = info.F_Ac_W().translational()  # on the body of geometry M
-            m_in, n_in = surf.id_M() in hand_g, surf.id_N() in hand_g
-            if m_in and not n_in:
-                out.append((surf.id_M(), surf.id_N(), f_M))
-            elif n_in and not m_in:
-                out.append((surf.id_N(), surf.id_M(), -f_M))
-        hand_bodies = {plant.get_body(b).index() for b in plant.GetBodyIndices(self.w.hand.model_instance)}
+            m, n = surf.id_M().get_value(), surf.id_N().get_value()
+            if m in hand_g and n not in hand_g:
+                out.append((m, n, f_M))
+            elif n in hand_g and m not in hand_g:
+                out.append((n, m, -f_M))
+        hand_bodies = self.w.hand_bodies
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
             a_in, b_in = info.bodyA_index() in hand_bodies, info.bodyB_index() in hand_bodies
             f_B = info.contact_force()  # on body B
             pp = info.point_pair()
             if b_in and not a_in:
-                out.append((pp.id_B, pp.id_A, f_B))
+                out.append((pp.id_B.get_value(), pp.id_A.get_value(), f_B))
             elif a_in and not b_in:
-                out.append((pp.id_A, pp.id_B, -f_B))
+                out.append((pp.id_A.get_value(), pp.id_B.get_value(), -f_B))
         return out
 
     def _hand_contact_pairs(self):
-        """(hand GeometryId, other GeometryId) of every hand contact."""
+        """(hand geometry id value, other geometry id value) of every hand contact."""
         plant, pc = self.w.plant, self._plant_context()
         results = plant.get_contact_results_output_port().Eval(pc)
         hand_g = self.w.hand_geometries
         pairs = []
         for i in range(results.num_hydroelastic_contacts()):
             surf = results.hydroelastic_contact_info(i).contact_surface()
-            for a, b in ((surf.id_M(), surf.id_N()), (surf.id_N(), surf.id_M())):
+            m, n = surf.id_M().get_value(), surf.id_N().get_value()
+            for a, b in ((m, n), (n, m)):
                 if a in hand_g and b not in hand_g:
                     pairs.append((a, b))
         for i in range(results.num_point_pair_contacts()):
             pp = results.point_pair_contact_info(i).point_pair()
-            for a, b in ((pp.id_A, pp.id_B), (pp.id_B, pp.id_A)):
+            ga, gb = pp.id_A.get_value(), pp.id_B.get_value()
+            for a, b in ((ga, gb), (gb, ga)):
                 if a in hand_g and b not in hand_g:
                     pairs.append((a, b))
         return pairs
@@ -727,12 +740,12 @@ class SimWorld:
         with self._lock:
             poses = self._object_poses()
             touching = {}
-            left = {g for g, l in self.w.hand.geometry_links.items() if l.startswith("left_")}
-            right = {g for g, l in self.w.hand.geometry_links.items() if l.startswith("right_")}
+            left = {g for g, l in self.w.hand_link_of.items() if l.startswith("left_")}
+            right = {g for g, l in self.w.hand_link_of.items() if l.startswith("right_")}
             geom_owner = {}
             for n, b in zip(self.names, self.w.object_bodies):
                 for g in self.w.plant.GetCollisionGeometriesForBody(b):
-                    geom_owner[g] = n
+                    geom_owner[g.get_value()] = n
             for h, other in self._hand_contact_pairs():
                 n = geom_owner.get(other)
                 if n is not None:
