@@ -78,6 +78,13 @@ def test_cube_max_equals_max_pool(radius):
     torch.testing.assert_close(detection.cube_max(volume, radius), reference, rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("radius", [0, 1, 2, 6, 45])
+def test_cube_any_equals_cube_max_of_mask(radius):
+    mask = torch.rand(R, R, R) > 0.995
+    expected = detection.cube_max(mask.float(), radius) > 0
+    assert torch.equal(detection.cube_any(mask, radius), expected)
+
+
 def test_origin_transform_moves_poses():
     T = np.eye(4)
     T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # grid turned 90 deg about z
@@ -116,41 +123,11 @@ def test_polyphase_head_on_half_features_equals_dense_head():
         half = net.half_features(x)
         score, logit = net.score_and_validness_from_half(half)
         index = torch.tensor([[0, 0, 0], [39, 39, 39], [7, 30, 2], [1, 38, 20]])
-        at_score, at_logit = net.score_and_validness_at(half, index, half=True)
         rot_half = net.rotation_at(half, index, half=True)
         rot_full = net.rotation_at(net.features(x), index)
     torch.testing.assert_close(score, dense_score, atol=1e-5, rtol=1e-4)
     torch.testing.assert_close(logit, dense_logit, atol=1e-5, rtol=1e-4)
-    torch.testing.assert_close(at_score, dense_score[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
-    torch.testing.assert_close(at_logit, dense_logit[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
     torch.testing.assert_close(rot_half, rot_full, atol=1e-5, rtol=1e-4)
-
-
-def test_score_and_validness_at_equals_dense_head():
-    torch.manual_seed(0)
-    net = networks.GraspNet(score_scale_n=5.0).eval()
-    index = torch.tensor([[0, 0, 0], [39, 39, 39], [7, 30, 2]])
-    with torch.inference_mode():
-        f = net.features(torch.rand(1, 1, R, R, R))
-        score, logit = net.score_and_validness(f)
-        at_score, at_logit = net.score_and_validness_at(f, index)
-    torch.testing.assert_close(at_score, score[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
-    torch.testing.assert_close(at_logit, logit[0][tuple(index.T)], atol=1e-5, rtol=1e-4)
-
-
-def test_rescoring_reranks_and_rethresholds():
-    score, validness = hand_made_outputs()
-    exact = {(20, 20, 8): (1.0, 5.0), (20, 25, 8): (4.0, 5.0), (10, 10, 8): (3.0, -5.0), (30, 12, 9): (2.0, 5.0)}
-
-    def rescore(index):
-        values = torch.tensor([exact[tuple(int(v) for v in i)] for i in index])
-        return values[:, 0], values[:, 1]
-
-    grasps = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS, rescore_at=rescore)
-    # (10, 10, 8) is no longer valid; the others are ranked by their re-computed scores.
-    assert [g.voxel_index for g in grasps] == [(20, 25, 8), (30, 12, 9), (20, 20, 8)]
-    assert [g.score_n for g in grasps] == [4.0, 2.0, 1.0]
-    assert all(g.validness == pytest.approx(torch.sigmoid(torch.tensor(5.0)).item()) for g in grasps)
 
 
 def test_detect_grasps_fp32_matches_dense_forward():
@@ -176,6 +153,21 @@ def test_detect_grasps_fp32_matches_dense_forward():
         np.testing.assert_allclose(g.pose[:3, :3].T @ g.pose[:3, :3], np.eye(3), atol=1e-5)
         assert np.linalg.det(g.pose[:3, :3]) == pytest.approx(1.0, abs=1e-5)
         assert ((0 <= g.pose[:3, 3]) & (g.pose[:3, 3] <= R * VS)).all()
+
+
+def test_float32_inference_convolutions_match_autograd_path():
+    """Without grad, float32 convs go straight to oneDNN; same numbers as F.conv3d."""
+    torch.manual_seed(2)
+    net = networks.GraspNet().eval()
+    x = torch.rand(1, 1, R, R, R)
+    with torch.no_grad():
+        fast = net.half_features(x)
+    reference = net.half_features(x).detach()  # grad enabled: plain F.conv3d
+    torch.testing.assert_close(fast, reference, atol=1e-6, rtol=1e-5)
+    net.to(memory_format=torch.channels_last_3d)
+    with torch.no_grad():
+        fast_cl = net.half_features(x.contiguous(memory_format=torch.channels_last_3d))
+    torch.testing.assert_close(fast_cl, reference, atol=1e-6, rtol=1e-5)
 
 
 def test_detect_grasps_bf16_path_runs_and_ranks():

@@ -12,10 +12,10 @@ numpy until the final few grasps):
 3. non-maximum suppression: keep a voxel only if its score is the maximum of the
    surviving scores in its (2 * nms_radius_voxels + 1)^3 neighbourhood.
 4. rank by score (highest first), keep `max_grasps`, then evaluate the rotation head
-   only at those voxels and rebuild R (rotation.py). After a bf16 pass, the best
-   RESCORE_FACTOR x max_grasps are first re-scored by the score/validness head in
-   float32 (on the bf16 features) and re-ranked, so near-ties are not decided by
-   bf16 rounding of the outputs.
+   only at those voxels and rebuild R (rotation.py).
+With precision bf16 only the backbone runs in bf16 (autocast); the score/validness
+head runs in float32 on its output, so bf16 rounding of the outputs (8 mantissa
+bits: 0.125 N at 30 N) does not decide near-ties.
 The TCP position is the voxel centre: origin + (index + 0.5) * voxel_size_m.
 """
 
@@ -29,9 +29,6 @@ from . import rotation
 from .tsdf import InputError
 
 PRECISIONS = ("auto", "bf16", "fp32")
-
-# After a bf16 pass, this many times max_grasps candidates are re-scored in float32.
-RESCORE_FACTOR = 4
 
 
 @dataclass
@@ -123,7 +120,10 @@ def detect_grasps(
     with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
         # Heads from the half-resolution decoder output (exactly equal, see networks.py).
         half = model.half_features(x)
-        score_n, validness_logit = model.score_and_validness_from_half(half)
+    # The head in float32 (oneDNN, ~0.7 ms): bf16 outputs would round scores to 8
+    # mantissa bits (0.125 N at 30 N) and let rounding decide near-ties.
+    half = half.float()
+    score_n, validness_logit = model.score_and_validness_from_half(half)
     return select_grasps(
         grid,
         score_n[0],
@@ -137,7 +137,6 @@ def detect_grasps(
         max_grasps=max_grasps,
         surface_distance_voxels=surface_distance_voxels,
         nms_radius_voxels=nms_radius_voxels,
-        rescore_at=(lambda index: model.score_and_validness_at(half, index, half=True)) if precision == "bf16" else None,
     )
 
 
@@ -161,10 +160,25 @@ def cube_max(volume, radius):
     return x
 
 
+def cube_any(mask, radius):
+    """(R, R, R) bool: any True within the (2 radius + 1)^3 cube around each voxel.
+
+    Box sums by cumulative sums along each axis: 3 passes whatever the radius.
+    """
+    r = int(radius)
+    x = mask.to(torch.int32)
+    for dim in range(3):
+        n = x.shape[dim]
+        c = torch.nn.functional.pad(x.cumsum(dim), [0, 0] * (2 - dim) + [1, 0])  # c[i] = sum x[:i]
+        hi = (torch.arange(n) + r + 1).clamp_max(n)  # exclusive window end
+        lo = (torch.arange(n) - r).clamp_min(0)
+        x = c.index_select(dim, hi) - c.index_select(dim, lo)
+    return x > 0
+
+
 def near_surface_mask(grid, surface_distance_voxels):
     """(R, R, R) bool: within the cube neighbourhood of an observed on/behind-surface voxel."""
-    occupied = ((grid > 0) & (grid <= 0.5)).float()
-    return cube_max(occupied, surface_distance_voxels) > 0
+    return cube_any((grid > 0) & (grid <= 0.5), surface_distance_voxels)
 
 
 def select_grasps(
@@ -180,21 +194,16 @@ def select_grasps(
     max_grasps=20,
     surface_distance_voxels=6,
     nms_radius_voxels=2,
-    rescore_at=None,
 ):
     """Steps 1-4 of the module doc on network outputs.
 
     grid, score_n, validness: (R, R, R) tensors; rotation_channels_at: callable
-    (N, 3) long voxel indices -> (N, C) rotation channels. rescore_at: optional
-    callable (N, 3) -> (score_n, validness_logit) in float32; if given, the best
-    RESCORE_FACTOR x max_grasps survivors are re-scored with it, re-thresholded and
-    re-ranked (used after a bf16 pass).
+    (N, 3) long voxel indices -> (N, C) rotation channels.
     """
     grid = torch.as_tensor(grid)
     score_n = torch.as_tensor(score_n).float()
     validness = torch.as_tensor(validness).float()
-    candidate = near_surface_mask(grid, surface_distance_voxels)
-    candidate &= validness >= validness_threshold
+    candidate = near_surface_mask(grid, surface_distance_voxels) & (validness >= validness_threshold)
     candidate &= (score_n >= min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
     masked = torch.where(candidate, score_n, torch.full_like(score_n, -1.0))
     r = int(nms_radius_voxels)
@@ -202,17 +211,9 @@ def select_grasps(
         candidate &= masked == cube_max(masked, r)
     index = candidate.nonzero()
     scores = score_n[candidate]
-    keep = int(max_grasps) * (RESCORE_FACTOR if rescore_at is not None else 1)
-    order = torch.sort(scores, descending=True, stable=True).indices[:keep]
+    order = torch.sort(scores, descending=True, stable=True).indices[: int(max_grasps)]
     index, scores = index[order], scores[order]
     valid = validness[tuple(index.T)]
-    if rescore_at is not None and len(index):
-        scores, logits = rescore_at(index)
-        valid = torch.sigmoid(logits)
-        ok = (valid >= validness_threshold) & (scores >= min_score_n) & (scores > 0)
-        index, scores, valid = index[ok], scores[ok], valid[ok]
-        order = torch.sort(scores, descending=True, stable=True).indices[: int(max_grasps)]
-        index, scores, valid = index[order], scores[order], valid[order]
     if len(index) == 0:
         return []
     R = rotation.reconstruct(rotation_representation, rotation_channels_at(index).float())
@@ -223,9 +224,7 @@ def select_grasps(
     poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
     poses[:, 3, 3] = 1.0
     poses = T_task_grid @ poses
-    valid = valid.numpy()
-    index_np = index.numpy()
     return [
-        Grasp(pose=poses[n], score_n=float(scores[n]), validness=float(valid[n]), voxel_index=tuple(int(v) for v in index_np[n]))
-        for n in range(len(index))
+        Grasp(pose=pose, score_n=score, validness=v, voxel_index=tuple(ijk))
+        for pose, score, v, ijk in zip(poses, scores.tolist(), valid.tolist(), index.tolist())
     ]
