@@ -143,6 +143,9 @@ class SimNode(Node):
     def close(self):
         self.runner.stop()
         self.server.stop()
+        self.get_logger().info(
+            f"sim stopped: {self.runner.sim_s:.1f} s simulated while busy, real-time factor "
+            f"{self.runner.real_time_factor():.2f} (sim s per wall s of stepping)")
 
     # -- camera and ground truth ------------------------------------------------------
 

@@ -221,6 +221,9 @@ def _finger_servo_class():
         def set_reference(self, context, angle_rad):
             context.get_mutable_discrete_state(self._ref).SetFromVector([angle_rad])
 
+        def reference(self, context) -> float:
+            return context.get_discrete_state(self._ref).GetAtIndex(0)
+
         def command(self, context):
             return context.get_numeric_parameter(self._params).CopyToVector()
 
@@ -713,6 +716,15 @@ class SimWorld:
                 return (width, "blocked") if on_something else (cmd.target_width_m, "at_target")
             return width, "moving"
 
+    def fingers_busy(self) -> bool:
+        """True while the fingers move or the servo is still building up its grip."""
+        with self._lock:
+            if self._finger_command is None:
+                return False
+            target, _, _ = self.w.finger_servo.command(self._servo_context())
+            ref = self.w.finger_servo.reference(self._servo_context())
+            return abs(ref - target) > 1e-9 or self.finger_status()[1] == "moving"
+
     def finger_plant(self, advances_time: bool = True) -> "SimFingerPlant":
         """A robotiq_driver FingerPlant backed by this world. With `advances_time` each
         `advance(dt)` also simulates dt (the emulator's clock drives the sim); without,
@@ -925,10 +937,11 @@ class RealTimeRunner:
     """Steps a SimWorld in its own thread, paced to the wall clock (never faster than
     `real_time_rate`; slower when the physics cannot keep up). While nothing moves (no arm
     motion, fingers idle, every body slower than 1 mm/s) it does not step, so an idle
-    scene costs no CPU. If the emulator stops driving the fingers (rGTO = 0, a fault) for
+    scene costs no CPU (a held object at rest included). If the emulator stops driving the fingers (rGTO = 0, a fault) for
     `finger_idle_hold_s`, the fingers are stopped where they are."""
 
-    CHUNK_S = 0.01
+    CHUNK_S = 0.01  # simulated per lock hold (5 steps at 2 ms, ~10-25 ms of wall time)
+    YIELD_S = 0.001
 
     def __init__(self, world: SimWorld, finger_plant: SimFingerPlant | None = None,
                  real_time_rate: float = 1.0, finger_idle_hold_s: float = 0.1):
@@ -959,7 +972,7 @@ class RealTimeRunner:
         w = self.world
         if w._motion is not None and not w._motion.done.is_set():
             return True
-        if self.finger_plant is not None and self.finger_plant.idle_for_s() < self.finger_idle_hold_s:
+        if w.fingers_busy():
             return True
         v = w.w.plant.GetVelocities(w._plant_context())
         return bool(np.abs(v).max(initial=0.0) > 1e-3)
@@ -983,6 +996,10 @@ class RealTimeRunner:
                     sim_wall_offset = None
                     self._stop.wait(self.CHUNK_S)
                     continue
+                # Let waiting threads (the Modbus server answering within 0.1 s, services)
+                # take the lock: a released lock is not handed over, and re-taking it at
+                # once starved them.
+                time.sleep(self.YIELD_S)
                 # pace: sim time since the busy period began must not run ahead of wall time
                 now = time.monotonic()
                 if sim_wall_offset is None:
