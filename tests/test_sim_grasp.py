@@ -105,28 +105,29 @@ def test_grip_force_is_calibrated_to_40_newtons():
     assert measure_squeeze_force_n(0.05, SimSettings(grip_force_n=20.0)) == pytest.approx(f / 2, rel=0.15)
 
 
-def test_score_does_not_depend_on_the_ramp_rate(cylinder_sim):
-    """Peak-resistance scoring: 200 vs 800 N/s on one settled grasp, pulling the
-    cylinder out of the pads (+z) and along its axis (+x)."""
+def test_score_does_not_depend_on_the_ramp_rate():
+    """Peak-resistance scoring at the label settings (dt 1 ms): 400 vs 1600 N/s on one
+    settled power grasp, pulling the cylinder along its axis (+x) and out (+z)."""
     from sim_bridge.disturbance_rejection import DIRECTIONS_TCP, measure_departure_force
 
-    root, reason = cylinder_sim.close(cylinder_pose(-0.02))
+    cyl = procedural_object("cylinder", (0.065, 0.2), mass_kg=0.5)
+    sim = GraspSimulator(cyl, SimSettings.for_labels())
+    root, reason = sim.close(cylinder_pose(-0.02))
     assert not reason
     settled = root.Clone()
-    R = cylinder_sim.X_W_tcp.rotation().matrix()
-    s = cylinder_sim.settings
+    R = sim.X_W_tcp.rotation().matrix()
+    s = sim.settings
     scores = {}
     for k in (0, 4):
-        for rate in (200.0, 800.0):
+        for rate in (400.0, 1600.0):
             root.SetTimeStateAndParametersFrom(settled)
             f, departed, _ = measure_departure_force(
-                cylinder_sim.simulator, cylinder_sim.plant, cylinder_sim.object_instance,
-                cylinder_sim.ramp, R @ DIRECTIONS_TCP[k], rate, s.max_force_n,
-                s.departure_travel_m, s.resistance_window_s)
+                sim.simulator, sim.plant, sim.object_instance, sim.ramp, R @ DIRECTIONS_TCP[k],
+                rate, s.max_force_n, s.departure_travel_m, s.resistance_window_s)
             assert departed
             scores[k, rate] = f
-    for k in (0, 4):
-        assert scores[k, 800.0] == pytest.approx(scores[k, 200.0], rel=0.12), scores
+    for k in (0, 4):  # measured: 1.5% and 2.5%
+        assert scores[k, 1600.0] == pytest.approx(scores[k, 400.0], rel=0.05), scores
 
 
 VGN_OBJECT = (pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes" / "vgn_train"
@@ -143,3 +144,20 @@ def test_vgn_mesh_object_is_grasped_from_the_top():
     out = GraspSimulator(obj, FAST).evaluate(X)
     assert out.grasped and out.mode == "precision", out
     assert 5.0 < out.min_score_n < 100.0
+
+
+def test_box_closed_on_at_an_angle_turns_into_the_pads_and_is_held():
+    """Closing on a box 15° and 30° off square: it turns square to the pads and stays
+    (with zero contact dissipation it snapped out of the hand at ~1 m/s at dt 2 ms)."""
+    from pydrake.math import RollPitchYaw
+
+    box = procedural_object("box", (0.059, 0.05, 0.064), mass_kg=0.3)
+    sim = GraspSimulator(box, FAST)
+    for yaw_deg in (15.0, 30.0):
+        X = np.eye(4)
+        X[:3, :3] = RollPitchYaw(0, 0, np.radians(yaw_deg)).ToRotationMatrix().matrix()
+        out = sim.evaluate(X)
+        assert out.grasped and out.mode == "precision", (yaw_deg, out.reason)
+        settled_yaw = np.degrees(np.arctan2(out.X_object_tcp_settled[1, 0], out.X_object_tcp_settled[0, 0]))
+        assert min(abs(settled_yaw), abs(abs(settled_yaw) - 90)) < 5.0  # square to the pads
+        assert out.min_score_n > 20.0

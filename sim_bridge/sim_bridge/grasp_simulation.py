@@ -43,33 +43,39 @@ MODES = ("power", "precision", "none")
 
 @dataclass
 class SimSettings:
-    time_step_s: float = 2e-3  # fast; scores converge at 1e-3 (use that for labels, README)
+    """Defaults are fast (dt 2 ms). For training labels use `SimSettings.for_labels()`:
+    dt 1 ms, where scores have converged in dt, with a 1600 N/s ramp that costs about
+    the same as these defaults (README: time step, ramp-rate dependence)."""
+
+    time_step_s: float = 2e-3
     contact_model: str = "hydroelastic"  # or "point"
     grip_force_n: float = 40.0  # squeeze between the pads (calibrated, see README)
     static_friction: float = 0.75  # paper value; SAP ignores it (measured, README)
     dynamic_friction: float = 0.5
-    hunt_crossley_dissipation_s_per_m: float = 5.0
+    hunt_crossley_dissipation_s_per_m: float = 5.0  # paper value; SAP ignores it
     hydroelastic_modulus_pa: float = 1e8
-    # SAP ignores Hunt-Crossley dissipation (kept above for the record and for other
-    # solvers) and uses a Kelvin-Voigt relaxation time. Drake's default 0.1 s turns the
-    # tilted rim faces of a hydroelastic patch into a speed-dependent drag (friction
-    # read 1.3 mu, scores grew with the ramp rate); 0 keeps scores rate-independent
-    # (README: ramp-rate dependence). Point contact needs some dissipation to come to
-    # rest (a box between the pads rattled forever with 0). None: 0 / 2.5 ms.
+    # SAP's dissipation is a Kelvin-Voigt relaxation time. Drake's default 0.1 s turns
+    # the tilted rim faces of a hydroelastic patch into a speed-dependent drag (friction
+    # read 1.3 mu; scores grew with the ramp rate); 0 lets a box squeezed at its edges
+    # snap out of the hand at 1 m/s at dt 2 ms. None = 1 ms (hydroelastic) / 2.5 ms
+    # (point contact, which rattles with less).
     relaxation_time_s: float | None = None
+    closing_speed_rad_s: float = 2.0  # driver joint; open -> closed in ~0.4 s
+    max_close_time_s: float = 1.5
+    settle_speed_m_s: float = 5e-3  # object (and pads) slower than this = settled
+    force_ramp_rate_n_s: float = 400.0
+    max_force_n: float = 200.0  # ramp cap; a score equal to this means "held to the cap"
+    departure_travel_m: float = 0.02  # COM travel that ends a ramp ("left the hand")
+    resistance_window_s: float = 0.02  # momentum window for the resisted force
+
+    @classmethod
+    def for_labels(cls, **overrides) -> "SimSettings":
+        return cls(**{"time_step_s": 1e-3, "force_ramp_rate_n_s": 1600.0, **overrides})
 
     def effective_relaxation_time_s(self) -> float:
         if self.relaxation_time_s is not None:
             return self.relaxation_time_s
-        return 0.0 if self.contact_model == "hydroelastic" else 2.5e-3
-    closing_speed_rad_s: float = 2.0  # driver joint; open -> closed in ~0.4 s
-    max_close_time_s: float = 1.5
-    settle_speed_m_s: float = 5e-3  # object (and pads) slower than this = settled
-    # Scores at 400/800/1600 N/s (dt 1 ms): within 2% up to 800, -9% at 1600 (README).
-    force_ramp_rate_n_s: float = 800.0
-    max_force_n: float = 200.0  # ramp cap; a score equal to this means "held to the cap"
-    departure_travel_m: float = 0.02  # COM travel that ends a ramp ("left the hand")
-    resistance_window_s: float = 0.02  # momentum window for the resisted force
+        return 1e-3 if self.contact_model == "hydroelastic" else 2.5e-3
 
     def validate(self):
         if self.contact_model not in ("hydroelastic", "point"):
