@@ -22,6 +22,7 @@ setup(
             "datagen = sim_bridge.datagen:main",
             "data_report = sim_bridge.data_report:main",
             "sim = sim_bridge.sim_node:main",
+            "demo = sim_bridge.clutter_demo:main",
         ],
     },
 )
