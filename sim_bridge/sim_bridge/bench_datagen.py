@@ -61,6 +61,7 @@ def main(argv=None):
             run_object_stage(tmp, sources, args.grasps, args.seed, chunk_size=args.grasps,
                              sim_settings=settings, executor=ex, progress=False)
             dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        held_per_cpu_hour = None
         tables = [np.load(p) for p in sorted(pathlib.Path(tmp, "objects").glob("*.npz"))]
         sims = sum(len(t["mode"]) for t in tables)
         held = sum(int(t["grasped"].sum()) for t in tables)
@@ -68,6 +69,7 @@ def main(argv=None):
         print(f"object stage: {sims} grasps ({held} held) in {dt:.1f} s wall / {dc:.1f} s CPU = "
               f"{3600 * sims / dt:.0f} (wall) / {3600 * sims / dc:.0f} (CPU) grasps/h per core; "
               f"held grasps/h per core {3600 * held / dt:.0f} (wall) / {3600 * held / dc:.0f} (CPU)")
+        held_per_cpu_hour = 3600 * held / dc
 
         rng = np.random.default_rng(args.seed)
         for kind in ("packed", "pile"):
@@ -92,7 +94,7 @@ def main(argv=None):
         print(f"scene stage: {args.scenes} scenes in {dt:.1f} s wall / {dc:.1f} s CPU = "
               f"{60 * args.scenes / dt:.1f} (wall) / {60 * args.scenes / dc:.1f} (CPU) scenes/min per core "
               f"({labels} labels)")
-        print(f"held_grasps_per_core_hour={3600 * held / dc:.0f} scenes_per_core_minute={60 * args.scenes / dc:.1f}")
+        print(f"held_grasps_per_core_hour={held_per_cpu_hour:.0f} scenes_per_core_minute={60 * args.scenes / dc:.1f}")
     return 0
 
 

@@ -24,6 +24,7 @@ retried on the next run.
 """
 
 import dataclasses
+import hashlib
 import json
 import pathlib
 import shutil
@@ -109,6 +110,16 @@ def procedural_sources(count, seed):
             for i in range(count)]
 
 
+def object_from_table(table, mesh_dirs=()):
+    """The ObjectSpec a grasp table was made for; ObjectError if it cannot be found or
+    is no longer the same shape (then the table must be regenerated)."""
+    spec = source_from_table(table, mesh_dirs).load()
+    if "shape_sha256" in table and shape_sha256(spec) != str(table["shape_sha256"]):
+        raise ObjectError(f"{table['name']}: the object is not the one its grasp table was simulated with "
+                          "(objects.py or the mesh changed); regenerate its table")
+    return spec
+
+
 def source_from_table(table, mesh_dirs=()):
     """ObjectSource of a loaded grasp table; mesh files are looked up in mesh_dirs."""
     name, kind, source = str(table["name"]), str(table["source_kind"]), str(table["source"])
@@ -134,6 +145,17 @@ class ObjectChunk:
     sim_settings: object = None          # SimSettings; None = defaults
     sampling: SamplingSettings = SamplingSettings()
     simulator_factory: object = None     # callable(obj, settings) -> .evaluate(X); None = Drake
+
+
+def shape_sha256(spec):
+    """Fingerprint of an object's collision shape and mass: a table is only valid for
+    the object it was simulated with (objects.py or a mesh file may change later)."""
+    m = spec.collision_mesh()
+    h = hashlib.sha256()
+    for a in (np.round(np.asarray(m.vertices, float), 6), np.asarray(m.faces, np.int64),
+              np.round([spec.mass_kg], 9), np.round(np.asarray(spec.com_m, float), 6)):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
 
 
 def object_seed(master_seed, name):
@@ -172,6 +194,7 @@ def _run_chunk(task, obj):
     sim = factory(obj, settings) if len(X) else None
     rows = [_evaluate(sim, x) for x in X]
     meta = dict(n_candidates=len(candidates), mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
+                shape_sha256=shape_sha256(obj),
                 sim_settings=json.dumps(dataclasses.asdict(settings), sort_keys=True))
     return "ok", (rows, meta)
 
@@ -275,6 +298,7 @@ class ObjectStageStore:
             seed=np.asarray(object_seed(master_seed, source.name), np.uint64),
             master_seed=np.asarray(master_seed, np.int64),
             mass_kg=meta["meta_mass_kg"], com_m=meta["meta_com_m"], sim_settings=meta["meta_sim_settings"],
+            shape_sha256=meta["meta_shape_sha256"],
             n_candidates=meta["meta_n_candidates"],
             sampling_settings=np.asarray(json.dumps(dataclasses.asdict(sampling), sort_keys=True)),
             mode_names=np.asarray(MODE_NAMES), contact_link_names=np.asarray(CONTACT_LINK_NAMES),

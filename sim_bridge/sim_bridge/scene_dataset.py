@@ -32,7 +32,7 @@ import trimesh
 
 from . import atomic_files, hand_collision
 from .gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
-from .object_grasps import MODE_NAMES, load_table, source_from_table
+from .object_grasps import MODE_NAMES, load_table, object_from_table
 from .parallel import make_executor, run_tasks, task_seed
 from .scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from .voxel_labels import RESOLUTION, voxel_labels
@@ -83,7 +83,7 @@ def _run_scene(task):
     arrangement = str(rng.choice(ARRANGEMENTS))
     pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
     tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
-    specs = [source_from_table(t, task.mesh_dirs).load() for t in tables]
+    specs = [object_from_table(t, task.mesh_dirs) for t in tables]
     keep, poses = arrange(specs, arrangement, rng, task.settings)
     tables = [tables[i] for i in keep]
     specs = [specs[i] for i in keep]
