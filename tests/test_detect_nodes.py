@@ -56,16 +56,23 @@ def test_bag_replay_through_tsdf_and_detect(ros_node, ros_process, model_path):
     assert player.wait_for_subscribers(list(REMAP.values()), timeout_s=20), "tsdf node did not subscribe"
     assert ros_testing.wait_for_publisher(ros_node, "/grasps")
     last_stamp = max(t for _, _, t in read_bag(BAG))
-    # Recorded timing (5 Hz): a burst of 1 MB best-effort images would overrun the
-    # subscriber's socket, as it would from a real camera.
-    player.play(rate=1.0)
 
     def stamp_ns(msg):
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
-    # All four frames fused: a volume and grasps stamped with the last frame arrive.
-    assert ros_testing.spin_until(ros_node, lambda: any(stamp_ns(g) == last_stamp for g in grasps), 30), (
-        f"no /grasps for the last frame; tsdf log:\n{tsdf.output()[-2000:]}\ndetect log:\n{detect.output()[-2000:]}")
+    def last_frame_detected():
+        return any(stamp_ns(g) == last_stamp for g in grasps)
+
+    # Recorded timing (5 Hz), as from a camera. Images travel best effort (sensor-data
+    # QoS), so on a loaded machine one can be lost: replay (the same scene) until the
+    # volume of the last frame has been detected, at most three times.
+    for _ in range(3):
+        player.play(rate=1.0)
+        if ros_testing.spin_until(ros_node, last_frame_detected, 10):
+            break
+    assert last_frame_detected(), (
+        f"no /grasps for the last frame; volumes stamped {[stamp_ns(v) for v in volumes]}; tsdf log:\n"
+        f"{tsdf.output()[-2000:]}\ndetect log:\n{detect.output()[-2000:]}")
     final = next(g for g in grasps if stamp_ns(g) == last_stamp)
     assert final.header.frame_id == "task" and final.model_name == "untrained.pt"
     assert 0 < len(final.grasps) <= 20

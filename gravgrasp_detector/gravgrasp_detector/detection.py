@@ -142,43 +142,28 @@ def detect_grasps(
 
 def cube_max(volume, radius):
     """Max over the (2 radius + 1)^3 cube around each voxel of an (R, R, R) tensor
-    (voxels outside the volume are ignored).
+    (bool: any), ignoring voxels outside the volume.
 
-    Separable, as shifted element-wise maxima along each axis: 3 x 2r passes over the
-    volume; ~20x faster than max_pool3d on this CPU.
+    Separable, by shifted element-wise maxima along each axis with doubling reach
+    (1, 2, 4 ...): about 3 log2(r) passes; ~30x faster than max_pool3d here.
     """
     r = int(radius)
     x = volume
     for dim in range(3):
-        n = x.shape[dim]
-        out = x.clone()
-        for shift in range(1, min(r, n - 1) + 1):
+        n, reach = x.shape[dim], 0
+        while reach < min(r, n - 1):
+            shift = min(reach + 1, r - reach, n - 1)
+            out = x.clone()
             head, tail = out.narrow(dim, 0, n - shift), out.narrow(dim, shift, n - shift)
             torch.maximum(head, x.narrow(dim, shift, n - shift), out=head)
             torch.maximum(tail, x.narrow(dim, 0, n - shift), out=tail)
-        x = out
+            x, reach = out, reach + shift
     return x
-
-
-def cube_any(mask, radius):
-    """(R, R, R) bool: any True within the (2 radius + 1)^3 cube around each voxel.
-
-    Box sums by cumulative sums along each axis: 3 passes whatever the radius.
-    """
-    r = int(radius)
-    x = mask.to(torch.int32)
-    for dim in range(3):
-        n = x.shape[dim]
-        c = torch.nn.functional.pad(x.cumsum(dim), [0, 0] * (2 - dim) + [1, 0])  # c[i] = sum x[:i]
-        hi = (torch.arange(n) + r + 1).clamp_max(n)  # exclusive window end
-        lo = (torch.arange(n) - r).clamp_min(0)
-        x = c.index_select(dim, hi) - c.index_select(dim, lo)
-    return x > 0
 
 
 def near_surface_mask(grid, surface_distance_voxels):
     """(R, R, R) bool: within the cube neighbourhood of an observed on/behind-surface voxel."""
-    return cube_any((grid > 0) & (grid <= 0.5), surface_distance_voxels)
+    return cube_max((grid > 0) & (grid <= 0.5), surface_distance_voxels)
 
 
 def select_grasps(
