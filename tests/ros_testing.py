@@ -15,6 +15,7 @@ import re
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 
 import rclpy
@@ -178,3 +179,37 @@ def call_service(node, client, request, timeout_s: float = 15.0):
     if not spin_until(node, future.done, timeout_s):
         raise AssertionError(f"service {client.srv_name} did not answer within {timeout_s} s")
     return future.result()
+
+
+class BackgroundSpin:
+    """Spin a node in a MultiThreadedExecutor thread, for tests that call services from
+    several threads at once (rclpy.spin_once on one node from two threads is unsafe)."""
+
+    def __init__(self, node, threads: int = 4):
+        from rclpy.executors import MultiThreadedExecutor
+        self.node = node
+        self.executor = MultiThreadedExecutor(num_threads=threads)
+        self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def call(self, client, request, timeout_s: float = 30.0):
+        if not client.wait_for_service(timeout_sec=min(timeout_s, 15.0)):
+            raise AssertionError(f"service {client.srv_name} not available")
+        done = threading.Event()
+        future = client.call_async(request)
+        future.add_done_callback(lambda _: done.set())
+        if not done.wait(timeout_s):
+            raise AssertionError(f"service {client.srv_name} did not answer within {timeout_s} s")
+        return future.result()
+
+    def shutdown(self):
+        self.executor.shutdown()
+
+
+def wait_until(predicate, timeout_s: float) -> bool:
+    """Poll a predicate whose data a background executor updates."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        time.sleep(0.02)
+    return bool(predicate())

@@ -128,7 +128,7 @@ def test_hand_colliding_with_the_tsdf_is_in_collision(gripper_port):
     i0, i1 = int(0.135 / voxel), int(0.165 / voxel)
     grid[i0:i1, int(0.195 / voxel):int(0.225 / voxel), int(0.04 / voxel):int(0.12 / voxel)] = 0.3
     outcome = ex.execute(grasp(), tsdf=(grid, voxel, np.zeros(3)))
-    assert outcome.code == ge.ResultCode.IN_COLLISION and "voxels" in outcome.message
+    assert outcome.code == ge.ResultCode.IN_COLLISION and "left distal link" in outcome.message, outcome.message
     # The same slab between the fingers (where the object belongs) is no collision.
     between = np.zeros_like(grid)
     between[i0:i1, int(0.14 / voxel):int(0.16 / voxel), int(0.04 / voxel):int(0.09 / voxel)] = 0.3

@@ -112,13 +112,13 @@ def plan_poses(X_grasp, pregrasp_distance_m, lift_height_m) -> dict[str, np.ndar
 
 
 def check_limits(poses, limits: ExecutionLimits) -> None:
-    lo, hi = np.asarray(limits.workspace_min_m), np.asarray(limits.workspace_max_m)
+    lo, hi = np.asarray(limits.workspace_min_m, float), np.asarray(limits.workspace_max_m, float)
     for name, X in poses.items():
         p = X[:3, 3]
         if np.any(p < lo) or np.any(p > hi):
             raise Abort(ResultCode.UNREACHABLE,
                         f"{name} TCP position {np.round(p, 3).tolist()} m is outside the workspace box "
-                        f"{list(lo)}..{list(hi)} m (parameters workspace_min_m/workspace_max_m)")
+                        f"{lo.tolist()}..{hi.tolist()} m (parameters workspace_min_m/workspace_max_m)")
     approach = poses["grasp"][:3, 2]
     angle = np.degrees(np.arccos(np.clip(-approach[2], -1.0, 1.0)))  # 0 = straight down
     if angle > limits.approach_cone_deg:

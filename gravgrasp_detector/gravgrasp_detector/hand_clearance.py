@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from robotiq_driver.hand_geometry import OPEN_HAND_BOXES_TCP, swept_boxes
+from robotiq_driver.hand_geometry import HAND_PARTS, OPEN_HAND_BOXES_TCP, swept_boxes
 
 # Voxels with values below this are "behind a surface". A little under 0.5 so that
 # voxels whose centre sits right on the surface do not count as collisions.
@@ -25,15 +25,17 @@ def occupied_points(grid: np.ndarray, voxel_size_m: float, origin=np.zeros(3)) -
 
 
 def points_in_hand(X_task_tcp: np.ndarray, points_task: np.ndarray, boxes_tcp=OPEN_HAND_BOXES_TCP,
-                   margin_m: float = 0.0) -> int:
-    """How many points lie inside any box of the hand at this pose."""
+                   margin_m: float = 0.0) -> dict[str, int]:
+    """Points inside each part of the hand at this pose: {part name: count}, hits only."""
     if len(points_task) == 0:
-        return 0
+        return {}
     p = (points_task - X_task_tcp[:3, 3]) @ X_task_tcp[:3, :3]  # into the TCP frame
-    inside = np.zeros(len(p), bool)
-    for lo, hi in boxes_tcp:
-        inside |= np.all((p > lo + margin_m) & (p < hi - margin_m), axis=1)
-    return int(inside.sum())
+    hits = {}
+    for name, (lo, hi) in zip(HAND_PARTS, boxes_tcp):
+        n = int(np.all((p > lo + margin_m) & (p < hi - margin_m), axis=1).sum())
+        if n:
+            hits[name] = hits.get(name, 0) + n
+    return hits
 
 
 def first_collision(poses: dict, tsdf) -> str:
@@ -47,8 +49,9 @@ def first_collision(poses: dict, tsdf) -> str:
     checks = [("pre-grasp pose", poses["pregrasp"], OPEN_HAND_BOXES_TCP),
               ("approach and grasp pose", poses["grasp"], swept_boxes(approach_m))]
     for name, X, boxes in checks:
-        n = points_in_hand(X, points, boxes, margin)
-        if n:
-            return (f"the open hand collides with the scene at the {name} ({n} occupied TSDF voxels "
-                    "inside the hand): pick another grasp")
+        hits = points_in_hand(X, points, boxes, margin)
+        if hits:
+            where = ", ".join(f"{part}: {n}" for part, n in hits.items())
+            return (f"the open hand collides with the scene at the {name} (occupied TSDF voxels "
+                    f"inside the {where}): pick another grasp")
     return ""

@@ -49,7 +49,9 @@ _distal = [[-PAD_WIDTH_M / 2, _h, PROXIMAL_TOP_Z_M - 0.002],
 _proximal = [[-FINGER_HALF_WIDTH_X_M, _h + 0.002, PALM_FACE_Z_M],
              [FINGER_HALF_WIDTH_X_M, PROXIMAL_OUTER_Y_M, PROXIMAL_TOP_Z_M]]
 
-# (lo, hi) corners in the TCP frame [m]: housing, wrist stub, proximal x2, distal x2.
+HAND_PARTS = ("housing", "wrist", "right proximal link", "left proximal link", "right distal link",
+              "left distal link")
+# (lo, hi) corners in the TCP frame [m], in the order of HAND_PARTS.
 OPEN_HAND_BOXES_TCP = np.array([
     [[-_bx, -_by, -FLANGE_TO_TCP_M], [_bx, _by, PALM_FACE_Z_M]],
     [[-0.045, -0.045, -FLANGE_TO_TCP_M - WRIST_STUB_M], [0.045, 0.045, -FLANGE_TO_TCP_M]],

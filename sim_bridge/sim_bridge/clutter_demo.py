@@ -143,7 +143,9 @@ def run(args) -> dict:
         procs.wait_for("sim", "sim ready", 120)
         procs.start("stack", [installed("gravgrasp_detector", "stack"), "--ros-args",
                               "-p", f"detect:model_path:={args.model}", "-p", f"execute:gripper_port:={link}",
-                              "-p", f"detect:min_score_n:={args.min_score_n}"])
+                              "-p", f"detect:min_score_n:={args.min_score_n}",
+                              # the sim runs slower than real time while it holds an object
+                              "-p", "execute:arm_timeout_s:=120.0"])
         procs.wait_for("stack", "execute ready", 120)
         rclpy.init()
         client = Client()

@@ -1,0 +1,115 @@
+"""End to end in the Drake sim: sim bridge, tsdf and execute as separate processes;
+the executor drives the simulated arm stand-in over MoveToPose and the simulated
+2F-85 over Modbus RTU on the sim's pseudo-terminal.
+
+The grasp comes from the fused TSDF (top of the object, across its narrow side):
+the trained model's /grasps take that role in the demo; this test pins the
+execution path independently of any model."""
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from gravgrasp_msgs.msg import ObjectStates, TSDFVolume
+from gravgrasp_msgs.srv import ExecuteGrasp
+from scipy.spatial.transform import Rotation
+from std_srvs.srv import SetBool
+
+from gravgrasp_detector.tsdf_node import VOLUME_QOS
+from ros_testing import BackgroundSpin, spin_until, wait_until
+
+R = ExecuteGrasp.Response
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """One sim + tsdf + execute for the module (starting Drake and the nodes is the slow part)."""
+    import rclpy
+
+    from ros_testing import RosProcess
+    tmp = tmp_path_factory.mktemp("e2e")
+    link = str(tmp / "ttySimGripper")
+    procs = [RosProcess("sim_bridge", "sim", params={"n_objects": 1, "seed": 2, "gripper_link": link,  # a 44x55x103 mm box
+                                                       "publish_rate_hz": 4.0}, log_dir=tmp)]
+    procs[0].wait_for_output("sim ready", timeout_s=120)
+    procs.append(RosProcess("gravgrasp_detector", "tsdf", log_dir=tmp))
+    # The sim runs at ~0.3-0.6x real time while holding an object: give motions time.
+    procs.append(RosProcess("gravgrasp_detector", "execute", params={"gripper_port": link, "arm_timeout_s": 120.0},
+                            log_dir=tmp))
+    procs[-1].wait_for_output("execute ready", timeout_s=60)
+    rclpy.init()
+    node = rclpy.create_node("e2e_test")
+    seen = {}
+    node.create_subscription(TSDFVolume, "tsdf", lambda m: seen.__setitem__("tsdf", m), VOLUME_QOS)
+    node.create_subscription(ObjectStates, "object_states", lambda m: seen.__setitem__("states", m), 10)
+    assert spin_until(node, lambda: "tsdf" in seen and "states" in seen, 60), "no TSDF / object states"
+    # Let a few frames integrate.
+    first = seen["tsdf"].header.stamp.sec
+    spin_until(node, lambda: seen["tsdf"].header.stamp.sec >= first + 2, 10)
+    spinner = BackgroundSpin(node)
+    yield {"node": node, "seen": seen, "procs": procs, "spin": spinner}
+    spinner.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    for p in procs:
+        p.stop()
+    assert not [p.name for p in procs if p.group_alive()], "processes left behind"
+
+
+def grasp_from_tsdf(msg, xy):
+    """Top-down TCP 2 cm below the object's top, closing across its narrower side."""
+    r = msg.resolution
+    grid = np.asarray(msg.tsdf, np.float32).reshape(r, r, r)
+    vs = msg.voxel_size_m
+    ij = np.floor(np.asarray(xy) / vs).astype(int)
+    window = grid[ij[0] - 8:ij[0] + 9, ij[1] - 8:ij[1] + 9, int(0.06 / vs):]  # above the table
+    surface = np.argwhere((window > 0.35) & (window < 0.65))
+    top_z = (surface[:, 2].max() + int(0.06 / vs) + 0.5) * vs
+    extent = np.ptp(surface[:, :2], axis=0)
+    closing = np.array([1.0, 0, 0]) if extent[0] <= extent[1] else np.array([0, 1.0, 0])
+    z = np.array([0, 0, -1.0])
+    R_tcp = np.stack([np.cross(closing, z), closing, z], axis=1)
+    return np.array([xy[0], xy[1], top_z - 0.02]), Rotation.from_matrix(R_tcp).as_quat()
+
+
+def request(p, q, frame="task"):
+    req = ExecuteGrasp.Request()
+    req.header.frame_id = frame
+    pos, ori = req.grasp.pose.position, req.grasp.pose.orientation
+    pos.x, pos.y, pos.z = (float(v) for v in p)
+    ori.x, ori.y, ori.z, ori.w = (float(v) for v in q)
+    return req
+
+
+def test_refusals_then_a_successful_lift(world):
+    node, seen, call = world["node"], world["seen"], world["spin"].call
+    states = seen["states"]
+    obj = states.poses[0].position
+    p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
+    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    arm = node.create_client(SetBool, "execute/arm")
+    assert call(arm, SetBool.Request(data=True)).success
+
+    bad = call(client, request([math.nan, 0, 0], q))
+    assert bad.result_code == R.INVALID_REQUEST
+    far = call(client, request([0.15, 1.5, 0.1], q), timeout_s=30)
+    assert far.result_code == R.UNREACHABLE
+    # TCP pushed 6 cm into the object: the palm meets what the camera saw.
+    inside = call(client, request(p - [0, 0, 0.06], q), timeout_s=30)
+    assert inside.result_code == R.IN_COLLISION, inside.message
+
+    # The real grasp, and a second call while it runs.
+    results = {}
+    worker = threading.Thread(target=lambda: results.setdefault(
+        "first", call(client, request(p, q), timeout_s=240)))
+    worker.start()
+    time.sleep(1.0)  # let the first call get going (it takes tens of seconds)
+    other = node.create_client(ExecuteGrasp, "execute_grasp")
+    busy = call(other, request(p, q), timeout_s=30)
+    worker.join(260)
+    first = results["first"]
+    assert busy.result_code == R.BUSY, busy.message
+    assert first.result_code == R.SUCCESS, first.message
+    assert wait_until(lambda: seen["states"].lifted[0], 10), "object not lifted in the ground truth"
+    assert seen["states"].height_above_table_m[0] > 0.08
