@@ -7,6 +7,7 @@ Prints `name=value` lines; the last two are `detect_median_ms` and
 top-10 agreement of bf16 with fp32 rankings, which decides whether bf16 may be used.
 
     bench_detect [--model models/gravgrasp.pt] [--bag tests/data/tabletop_bag] [--runs 50]
+                 [--threads 1] [--validness-threshold 0.5]
 """
 
 import argparse
@@ -93,6 +94,8 @@ def main(argv=None):
     parser.add_argument("--bag", default=str(ROOT / "tests" / "data" / "tabletop_bag"))
     parser.add_argument("--runs", type=int, default=50)
     parser.add_argument("--max-grasps", type=int, default=20)
+    parser.add_argument("--validness-threshold", type=float, default=0.5,
+                        help="an untrained net predicts ~0.497 everywhere: 0.49 lets it return grasps")
     parser.add_argument("--threads", type=int, default=1,
                         help="torch intra-op threads (the detect node's torch_threads default is 1)")
     args = parser.parse_args(argv)
@@ -114,7 +117,7 @@ def main(argv=None):
     print(f"machine={cpu_name()}, {os.cpu_count()} cores, torch threads {torch.get_num_threads()}, "
           f"bf16 native {detection.bf16_available()}, load average {os.getloadavg()[0]:.2f}")
     print(f"versions=python {platform.python_version()}, torch {torch.__version__}, open3d {open3d.__version__}")
-    print(f"model={model_note}")
+    print(f"model={model_note}; validness threshold {args.validness_threshold}")
     print(f"volumes={len(grids)} from {args.bag}")
 
     results = {}
@@ -123,7 +126,8 @@ def main(argv=None):
 
         def detect():
             grid = grids[next(cycle) % len(grids)]
-            return detection.detect_grasps(model, grid, voxel_size, max_grasps=args.max_grasps, precision=precision)
+            return detection.detect_grasps(model, grid, voxel_size, max_grasps=args.max_grasps, precision=precision,
+                                           validness_threshold=args.validness_threshold)
 
         results[f"detect_{precision}"] = median_ms(detect, args.runs)
         x = torch.from_numpy(grids[-2])[None, None]
@@ -145,7 +149,8 @@ def main(argv=None):
         for grid in grids:
             top = {}
             for precision in ("fp32", "bf16"):
-                grasps = detection.detect_grasps(model, grid, voxel_size, max_grasps=10, precision=precision)
+                grasps = detection.detect_grasps(model, grid, voxel_size, max_grasps=10, precision=precision,
+                                                 validness_threshold=args.validness_threshold)
                 top[precision] = [g.voxel_index for g in grasps]
             found.append(len(top["fp32"]))
             if not top["fp32"]:
