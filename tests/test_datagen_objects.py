@@ -1,6 +1,6 @@
 """Per-object stage end to end with the real Drake grasp simulation (tiny jobs):
 bad objects get one reason, outputs are equal on a local process pool, a local Dask
-cluster, and after a SIGKILL + resume (with a different chunking)."""
+cluster, and after a SIGKILL + resume; a finished table grows by whole blocks."""
 
 import os
 import pathlib
@@ -16,7 +16,8 @@ import trimesh
 from sim_bridge.datagen import run_object_stage
 from sim_bridge.object_grasps import load_table, mesh_sources
 
-GRASPS = 3
+GRASPS = 4
+BLOCK = 2
 SEED = 7
 
 
@@ -43,7 +44,7 @@ def good_meshes(tmp_path_factory):
 def reference(good_meshes, tmp_path_factory):
     """The tiny job on a local process pool (2 workers)."""
     out = tmp_path_factory.mktemp("ref")
-    s = run_object_stage(out, mesh_sources(good_meshes), GRASPS, SEED, workers=2, chunk_size=2, progress=False)
+    s = run_object_stage(out, mesh_sources(good_meshes), GRASPS, SEED, workers=2, block_size=BLOCK, progress=False)
     assert s["ok"] == 2 and s["error"] == 0
     return out
 
@@ -66,6 +67,7 @@ def assert_same_tables(a_dir, b_dir):
 def test_tables_hold_simulated_grasps(reference):
     for name, t in tables(reference).items():
         assert t["X_object_tcp"].shape == (GRASPS, 4, 4) and t["scores_n"].shape == (GRASPS, 6)
+        assert int(t["n_blocks"]) == GRASPS // BLOCK and int(t["block_size"]) == BLOCK
         assert str(t["source_kind"]) == "mesh" and str(t["source"]) == f"{name}.urdf"
         modes = [str(t["mode_names"][m]) for m in t["mode"]]
         # a held grasp has a mode and positive scores; a failed one says why
@@ -102,7 +104,7 @@ def test_dask_local_cluster_gives_the_same_tables(good_meshes, reference, tmp_pa
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         # through the scheduler address, as `datagen --scheduler tcp://...` does
-        s = run_object_stage(tmp_path, mesh_sources(good_meshes), GRASPS, SEED, chunk_size=2,
+        s = run_object_stage(tmp_path, mesh_sources(good_meshes), GRASPS, SEED, block_size=BLOCK,
                              scheduler=cluster.scheduler_address, progress=False)
     assert s["ok"] == 2
     assert_same_tables(reference, tmp_path)
@@ -111,7 +113,7 @@ def test_dask_local_cluster_gives_the_same_tables(good_meshes, reference, tmp_pa
 def test_killed_run_resumes_to_the_same_tables(good_meshes, reference, tmp_path):
     cmd = [sys.executable, "-m", "sim_bridge.datagen", "objects", "--meshes", str(good_meshes),
            "--grasps-per-object", str(GRASPS), "--seed", str(SEED), "--out", str(tmp_path),
-           "--workers", "1", "--chunk-size", "1", "--no-progress"]
+           "--workers", "1", "--block-size", str(BLOCK), "--no-progress"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     objects = tmp_path / "objects"
     deadline = time.monotonic() + 240
@@ -142,3 +144,24 @@ def test_a_table_only_rebuilds_the_object_it_was_made_for(reference, good_meshes
     write_urdf(tmp_path, "cylinder50", trimesh.creation.cylinder(radius=0.027, height=0.10, sections=32), 0.2)
     with pytest.raises(ObjectError, match="regenerate"):
         object_from_table(t, [tmp_path])
+
+
+def test_a_finished_table_grows_by_whole_blocks(good_meshes, reference, tmp_path):
+    import shutil
+
+    shutil.copytree(pathlib.Path(reference) / "objects", tmp_path / "objects")
+    s = run_object_stage(tmp_path, mesh_sources(good_meshes), GRASPS + BLOCK, SEED, workers=2, block_size=BLOCK,
+                         progress=False)
+    assert s["ok"] == 2
+    old, new = tables(reference), tables(tmp_path)
+    for name in old:
+        assert int(new[name]["n_blocks"]) == GRASPS // BLOCK + 1
+        assert len(new[name]["mode"]) == GRASPS + BLOCK
+        for key in ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "mode", "grasped", "reason"):
+            np.testing.assert_array_equal(new[name][key][:GRASPS], old[name][key], err_msg=f"{name}:{key}")
+        # the new block is new work, not a copy of an old one
+        assert not np.isin(new[name]["X_object_tcp_candidate"][GRASPS:, 0, 3],
+                           old[name]["X_object_tcp_candidate"][:, 0, 3]).any()
+    # a different block size would change what the blocks are: refused
+    with pytest.raises(ValueError, match="block-size"):
+        run_object_stage(tmp_path, mesh_sources(good_meshes), 8, SEED, workers=1, block_size=4, progress=False)

@@ -58,7 +58,7 @@ def main(argv=None):
         # one thread: the simulation runs here, serially, like one worker process
         with ThreadPoolExecutor(1) as ex:
             t0, c0 = time.perf_counter(), time.process_time()
-            run_object_stage(tmp, sources, args.grasps, args.seed, chunk_size=args.grasps,
+            run_object_stage(tmp, sources, args.grasps, args.seed, block_size=args.grasps,
                              sim_settings=settings, executor=ex, progress=False)
             dt, dc = time.perf_counter() - t0, time.process_time() - c0
         held_per_cpu_hour = None

@@ -28,33 +28,32 @@ from .parallel import make_executor, run_tasks
 
 
 def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, scheduler=None,
-                     chunk_size=8, sim_settings=None, simulator_factory=None, progress=True,
+                     block_size=8, sim_settings=None, simulator_factory=None, progress=True,
                      executor=None):
-    """Simulate `grasps_per_object` candidates of every source; returns a summary dict.
+    """Simulate `grasps_per_object` candidates (rounded up to whole blocks) of every
+    source; returns a summary dict.  Finished tables and skip notes are kept, so
+    calling again resumes, and a larger `grasps_per_object` grows the tables."""
+    from .object_grasps import SamplingSettings
 
-    Finished tables and skip notes are kept, so calling again resumes.
-    """
     store = ObjectStageStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
     atomic_files.remove_stale_temporaries(store.dir)
-    n_chunks = -(-grasps_per_object // chunk_size)
-    by_name = {s.name: s for s in sources}
-    if len(by_name) != len(sources):
+    n_blocks = -(-grasps_per_object // block_size)
+    if len({s.name for s in sources}) != len(sources):
         raise ValueError("object names must be unique")
-    tasks = [ObjectChunk(s, c, chunk_size, grasps_per_object, seed, sim_settings,
-                         simulator_factory=simulator_factory)
-             for s in sources for c in store.pending_chunks(s.name, n_chunks)]
-    # objects whose chunks all finished before a kill but were not merged yet
+    sampling = SamplingSettings()
+    # blocks that all finished before a kill but were not merged yet
     for s in sources:
-        if not store.done(s.name):
-            store.merge_if_complete(s, n_chunks, seed, tasks[0].sampling if tasks else ObjectChunk.sampling)
+        store.merge_if_complete(s, n_blocks, block_size, seed, sampling)
+    tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory)
+             for s in sources for c in store.pending_chunks(s.name, n_blocks, block_size)]
     errors = {}
 
     def on_result(task, result):
         status, payload = result
         name = task.source.name
-        if store.done(name):
-            return  # another chunk already skipped this object
+        if store.skip_path(name).exists():
+            return  # another block already skipped this object
         if status == "skip":
             store.write_skip(task.source, payload)
         elif status == "error":
@@ -62,7 +61,7 @@ def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, sc
         else:
             rows, meta = payload
             store.write_part(task, rows, meta)
-            store.merge_if_complete(task.source, n_chunks, seed, task.sampling)
+            store.merge_if_complete(task.source, n_blocks, block_size, seed, sampling)
 
     if tasks:
         if executor is not None:
@@ -154,8 +153,10 @@ def main(argv=None):
                    help="kg/m^3 for bare OBJ files (URDFs carry their mass)")
     o.add_argument("--procedural", type=int, default=0, help="number of procedural objects")
     o.add_argument("--procedural-seed", type=int, default=0)
-    o.add_argument("--grasps-per-object", type=int, default=64)
-    o.add_argument("--chunk-size", type=int, default=8, help="grasps per task (resume granularity)")
+    o.add_argument("--grasps-per-object", type=int, default=64,
+                   help="candidates simulated per object (rounded up to whole blocks); raise it later to grow tables")
+    o.add_argument("--block-size", type=int, default=8,
+                   help="grasps per task, each block with its own seed; fixed for an output directory")
     o.add_argument("--limit", type=int, default=0, help="only the first N objects (after sorting)")
     o.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
                    help="override a grasp_simulation.SimSettings field, e.g. max_close_time_s=4 (repeatable)")
@@ -191,7 +192,7 @@ def _run(p, args):
         except ValueError as e:
             p.error(str(e))
         s = run_object_stage(args.out, sources, args.grasps_per_object, args.seed, args.workers, args.scheduler,
-                             chunk_size=args.chunk_size, sim_settings=settings, progress=not args.no_progress)
+                             block_size=args.block_size, sim_settings=settings, progress=not args.no_progress)
         print(f"objects: ok={s['ok']} skipped={s['skipped']} error={s['error']} pending={s['pending']} "
               f"(report: {ObjectStageStore(args.out).dir / 'report.json'})")
         return 1 if s["error"] else 0

@@ -4,7 +4,8 @@ One table per object, `<out>/objects/<name>.npz` (all arrays, no pickles):
 
   name, source_kind ("mesh" | "procedural"), source (URDF/OBJ file name, or
   "<seed>:<count>:<index>" for `objects.random_procedural_objects`), mass_kg, com_m,
-  seed, sim_settings (JSON of SimSettings), sampling_settings (JSON),
+  shape_sha256 (collision shape + mass fingerprint), master_seed, block_size, n_blocks,
+  sim_settings (JSON of SimSettings), sampling_settings (JSON),
   X_object_tcp_candidate (N,4,4) float32   sampled pose (object frame, m)
   X_object_tcp           (N,4,4) float32   pose after the object settled in the hand
   scores_n               (N,6)   float32   disturbance rejection [N], +x -x +y -y +z -z (TCP)
@@ -16,9 +17,12 @@ One table per object, `<out>/objects/<name>.npz` (all arrays, no pickles):
   reason                 (N,)    str       why a grasp failed ("" if grasped)
   wall_time_s            (N,)    float32   simulation wall time (the only non-reproducible field)
 
-Work is split into chunks of grasps so a killed run loses at most one chunk per
-worker; chunk results live in `<out>/objects/.parts/<name>/` until the object is
-complete, then are merged (atomically) and removed.  An object that cannot be
+Grasps come in blocks of `block_size` candidates, each sampled with its own seed
+(master seed, object, block): block k is the same whatever the total, so a table
+can be grown later (`--grasps-per-object` larger, same output directory) and a
+killed run loses at most one block per worker.  Block results live in
+`<out>/objects/.parts/<name>/` until all requested blocks exist, then are appended
+to the table (atomically) and removed.  An object that cannot be
 used gets `<name>.skip.json` with one reason; unexpected errors are reported and
 retried on the next run.
 """
@@ -135,12 +139,13 @@ def source_from_table(table, mesh_dirs=()):
 
 @dataclass(frozen=True)
 class ObjectChunk:
-    """Grasps [start, start + size) of one object's candidate list."""
+    """Block `chunk` of an object's grasps: `size` candidates sampled with their own
+    seed (master seed, object, block), so block k is the same whatever the total and
+    a finished table can later be grown by more blocks."""
 
     source: ObjectSource
     chunk: int
     size: int
-    grasps_per_object: int
     master_seed: int
     sim_settings: object = None          # SimSettings; None = defaults
     sampling: SamplingSettings = SamplingSettings()
@@ -160,6 +165,10 @@ def shape_sha256(spec):
 
 def object_seed(master_seed, name):
     return task_seed(master_seed, "object", name)
+
+
+def block_seed(master_seed, name, block):
+    return task_seed(master_seed, "object", name, "block", block)
 
 
 def run_chunk(task: ObjectChunk):
@@ -184,16 +193,12 @@ def _run_chunk(task, obj):
     from .grasp_simulation import GraspSimulator, SimSettings
 
     settings = task.sim_settings or SimSettings()
-    seed = object_seed(task.master_seed, task.source.name)
-    candidates = sample_grasp_candidates(obj.collision_mesh(), task.grasps_per_object, seed, task.sampling)
-    if not len(candidates):
-        return "skip", (f"{task.source.name}: no antipodal grasp fits the {task.sampling.max_width_m * 1000:.0f} mm "
-                        "stroke with the open hand clear of the object (too large, or too thin/flat)")
-    X = candidates[task.chunk * task.size:(task.chunk + 1) * task.size]
+    seed = block_seed(task.master_seed, task.source.name, task.chunk)
+    X = sample_grasp_candidates(obj.collision_mesh(), task.size, seed, task.sampling)
     factory = task.simulator_factory or GraspSimulator
     sim = factory(obj, settings) if len(X) else None
     rows = [_evaluate(sim, x) for x in X]
-    meta = dict(n_candidates=len(candidates), mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
+    meta = dict(mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
                 shape_sha256=shape_sha256(obj),
                 sim_settings=json.dumps(dataclasses.asdict(settings), sort_keys=True))
     return "ok", (rows, meta)
@@ -253,10 +258,21 @@ class ObjectStageStore:
     def done(self, name):
         return self.table_path(name).exists() or self.skip_path(name).exists()
 
-    def pending_chunks(self, name, n_chunks):
-        if self.done(name):
+    def blocks_done(self, name, block_size):
+        """Blocks already merged into the object's table (0 if none)."""
+        if not self.table_path(name).exists():
+            return 0
+        with np.load(self.table_path(name)) as t:
+            if int(t["block_size"]) != block_size:
+                raise ValueError(f"{self.table_path(name)} was made with --block-size {int(t['block_size'])}; "
+                                 "use that (blocks define the candidates) or a new --out")
+            return int(t["n_blocks"])
+
+    def pending_chunks(self, name, n_chunks, block_size):
+        if self.skip_path(name).exists():
             return []
-        return [c for c in range(n_chunks) if not self.part_path(name, c).exists()]
+        first = self.blocks_done(name, block_size)
+        return [c for c in range(first, n_chunks) if not self.part_path(name, c).exists()]
 
     def write_part(self, task: ObjectChunk, rows, meta):
         arrays = _stack_rows(rows)
@@ -272,16 +288,30 @@ class ObjectStageStore:
         except OSError:
             pass
 
-    def merge_if_complete(self, source: ObjectSource, n_chunks, master_seed, sampling):
-        """Merge the chunk files into the object's table once all exist."""
-        paths = [self.part_path(source.name, c) for c in range(n_chunks)]
+    def merge_if_complete(self, source: ObjectSource, n_chunks, block_size, master_seed, sampling):
+        """Append the block files to the object's table once all blocks up to n_chunks exist."""
+        if self.skip_path(source.name).exists():
+            return False
+        first = self.blocks_done(source.name, block_size)
+        if first >= n_chunks:
+            return False
+        paths = [self.part_path(source.name, c) for c in range(first, n_chunks)]
         if not all(p.exists() for p in paths):
             return False
         parts = [dict(np.load(p)) for p in paths]
+        meta = parts[-1]
+        if first:
+            parts.insert(0, load_table(self.table_path(source.name)))
+            if str(parts[0]["shape_sha256"]) != str(meta["meta_shape_sha256"]):
+                raise ValueError(f"{source.name}: the object changed since its table was made; "
+                                 "remove its table or use a new --out")
+        if sum(len(p["mode"]) for p in parts) == 0:
+            self.write_skip(source, f"{source.name}: no antipodal grasp fits the {sampling.max_width_m * 1000:.0f} mm "
+                                    "stroke with the open hand clear of the object (too large, or too thin/flat)")
+            return True
         table = {}
-        for key in parts[0]:
-            if not key.startswith("meta_") and not key.startswith("finger_joint"):
-                table[key] = np.concatenate([p[key] for p in parts])
+        for key in ROW_KEYS:
+            table[key] = np.concatenate([p[key] for p in parts])
         # chunks may have seen different joints (a failed closure reports none): align
         names = sorted({str(n) for p in parts for n in p["finger_joint_names"]})
         angles = np.full((len(table["mode"]), len(names)), np.nan, np.float32)
@@ -292,14 +322,15 @@ class ObjectStageStore:
             row += len(p["mode"])
         table["finger_joint_names"] = np.asarray(names, dtype=str) if names else np.zeros(0, "<U1")
         table["finger_joint_angles"] = angles
-        meta = parts[0]
+        if first and str(parts[0]["sim_settings"]) != str(meta["meta_sim_settings"]):
+            raise ValueError(f"{source.name}: its table was simulated with other SimSettings; "
+                             "grow it with the same --sim-setting values or use a new --out")
         table.update(
             name=np.asarray(source.name), source_kind=np.asarray(source.kind), source=np.asarray(source.source),
-            seed=np.asarray(object_seed(master_seed, source.name), np.uint64),
             master_seed=np.asarray(master_seed, np.int64),
+            block_size=np.asarray(block_size), n_blocks=np.asarray(n_chunks),
             mass_kg=meta["meta_mass_kg"], com_m=meta["meta_com_m"], sim_settings=meta["meta_sim_settings"],
             shape_sha256=meta["meta_shape_sha256"],
-            n_candidates=meta["meta_n_candidates"],
             sampling_settings=np.asarray(json.dumps(dataclasses.asdict(sampling), sort_keys=True)),
             mode_names=np.asarray(MODE_NAMES), contact_link_names=np.asarray(CONTACT_LINK_NAMES),
         )
@@ -312,10 +343,12 @@ class ObjectStageStore:
         return True
 
 
+ROW_KEYS = ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "departed", "mode", "grasped",
+            "contacts", "reason", "wall_time_s")
+
+
 def _stack_rows(rows):
-    keys = ["X_object_tcp_candidate", "X_object_tcp", "scores_n", "departed", "mode", "grasped",
-            "contacts", "reason", "wall_time_s"]
-    out = {k: np.asarray([r[k] for r in rows]) for k in keys}
+    out = {k: np.asarray([r[k] for r in rows]) for k in ROW_KEYS}
     if not rows:
         out.update(X_object_tcp_candidate=np.zeros((0, 4, 4), np.float32), X_object_tcp=np.zeros((0, 4, 4), np.float32),
                    scores_n=np.zeros((0, 6), np.float32), departed=np.zeros((0, 6), bool),
