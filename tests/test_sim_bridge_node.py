@@ -94,8 +94,7 @@ def test_grasp_and_lift_through_ros_and_modbus(ros_node, ros_process, tmp_path):
     cylinder, 50 mm across and 143 mm tall."""
     link = tmp_path / "ttySimGripper"
     sim = ros_process("sim_bridge", "sim", params={
-        "n_objects": 1, "seed": 24, "object_mass_kg": 0.5, "gripper_link": str(link),
-        "publish_rate_hz": 5.0})
+        "n_objects": 1, "seed": 24, "object_mass_kg": 0.5, "gripper_link": str(link)})
     sim.wait_for_output(r"sim ready: gripper on \S+", timeout_s=90)
     states = []
     ros_node.create_subscription(ObjectStates, "object_states", states.append, 10)
@@ -115,13 +114,13 @@ def test_grasp_and_lift_through_ros_and_modbus(ros_node, ros_process, tmp_path):
         gripper.activate(timeout_s=10.0)
         go(top + 0.07)
         go(top - 0.03)
-        state = gripper.move_and_wait(0.0, speed_mps=0.1, force_n=60.0, timeout_s=10.0)
+        state = gripper.move_and_wait(0.0, speed_mps=0.15, force_n=60.0, timeout_s=10.0)
         assert state.object_detected, state
         assert gripper.width_m(state) == pytest.approx(0.05, abs=0.005)
-        go(top + 0.10, speed=0.1)
+        go(top + 0.10)
         assert gripper.read_state().object_detected  # still holding
     n = len(states)
-    assert spin_until(ros_node, lambda: len(states) > n + 1, 10)
+    assert spin_until(ros_node, lambda: len(states) > n + 1, 15)
     last = states[-1]
     assert last.names == [name] and last.in_hand[0] and last.lifted[0], last
     assert last.poses[0].position.z - p.z > 0.12  # of the 0.13 m lift

@@ -154,22 +154,29 @@ class SimNode(Node):
             self.get_logger().error(f"simulation stopped: {self.runner.error}", throttle_duration_sec=5.0)
         stamp = self.get_clock().now().to_msg()
         states = self.world.object_states()
-        # The scene only changes when something moves: re-render only then.
+        # A frame costs ~0.1 s of CPU that the physics then lacks: render only for a
+        # subscriber, and only after the scene moved (else republish the last frame).
+        want_depth = self.pub_depth.get_subscription_count() > 0
         key = (id(self.world.w), round(self.world.time_s, 4))
-        if key != self._render_key:
+        if want_depth and key != self._render_key:
             self._depth = self.world.render_depth()
             self._render_key = key
-        depth, k, T = self._depth
+        if self._depth is None:
+            k, T = self.world.intrinsics(), self.world.camera_pose()
+            depth = None
+        else:
+            depth, k, T = self._depth
         img = Image()
         img.header.stamp, img.header.frame_id = stamp, self.camera_frame_id
         img.height, img.width, img.encoding = k.height, k.width, self.encoding
-        if self.encoding == "32FC1":
-            data = depth.astype(np.float32)
-        else:
-            data = np.where(depth > 0, np.clip(np.round(depth * 1000.0), 1, 65535), 0).astype(np.uint16)
-        img.is_bigendian = 0
-        img.step = k.width * data.itemsize
-        img.data = data.tobytes()
+        if depth is not None:
+            if self.encoding == "32FC1":
+                data = depth.astype(np.float32)
+            else:
+                data = np.where(depth > 0, np.clip(np.round(depth * 1000.0), 1, 65535), 0).astype(np.uint16)
+            img.is_bigendian = 0
+            img.step = k.width * data.itemsize
+            img.data = data.tobytes()
         info = CameraInfo()
         info.header = img.header
         info.height, info.width = k.height, k.width
@@ -194,7 +201,8 @@ class SimNode(Node):
             msg.out_of_workspace.append(s.out_of_workspace)
         self.pub_pose.publish(cam)
         self.pub_info.publish(info)
-        self.pub_depth.publish(img)
+        if want_depth and depth is not None:
+            self.pub_depth.publish(img)
         self.pub_states.publish(msg)
 
     # -- services -------------------------------------------------------------------
