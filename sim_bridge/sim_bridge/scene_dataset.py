@@ -79,14 +79,17 @@ def _run_scene(task):
     from .depth_rendering import DepthRenderer, random_view_on_hemisphere
 
     rng = np.random.default_rng(task_seed(task.master_seed, "scene", task.index))
-    n_req = int(rng.integers(1, task.max_objects + 1))
-    arrangement = str(rng.choice(ARRANGEMENTS))
-    pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
-    tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
-    specs = [object_from_table(t, task.mesh_dirs) for t in tables]
-    keep, poses = arrange(specs, arrangement, rng, task.settings)
-    tables = [tables[i] for i in keep]
-    specs = [specs[i] for i in keep]
+    for _ in range(5):  # redraw (same rng: still deterministic) if every object left the table
+        n_req = int(rng.integers(1, task.max_objects + 1))
+        arrangement = str(rng.choice(ARRANGEMENTS))
+        pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
+        tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
+        specs = [object_from_table(t, task.mesh_dirs) for t in tables]
+        keep, poses = arrange(specs, arrangement, rng, task.settings)
+        tables = [tables[i] for i in keep]
+        specs = [specs[i] for i in keep]
+        if keep:
+            break
 
     # depth views -> TSDF
     table_mesh = trimesh.creation.box((2.0, 2.0, 0.05))
