@@ -28,6 +28,7 @@ retried on the next run.
 """
 
 import dataclasses
+import functools
 import hashlib
 import json
 import pathlib
@@ -89,15 +90,10 @@ def _check_parts(spec):
                               "every size must be positive")
 
 
-_PROC_CACHE = {}
-
-
+@functools.lru_cache(maxsize=1)
 def _procedural(count, seed):
-    key = (count, seed)
-    if key not in _PROC_CACHE:
-        _PROC_CACHE.clear()
-        _PROC_CACHE[key] = random_procedural_objects(count, seed)
-    return _PROC_CACHE[key]
+    # a worker rebuilds object i of the same set many times: build the set once
+    return random_procedural_objects(count, seed)
 
 
 def mesh_sources(mesh_dir, density_kg_m3=0.0):
@@ -254,9 +250,6 @@ class ObjectStageStore:
 
     def part_path(self, name, chunk):
         return self.parts / name / f"{chunk:05d}.npz"
-
-    def done(self, name):
-        return self.table_path(name).exists() or self.skip_path(name).exists()
 
     def blocks_done(self, name, block_size):
         """Blocks already merged into the object's table (0 if none)."""
