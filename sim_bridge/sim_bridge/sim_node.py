@@ -143,9 +143,9 @@ class SimNode(Node):
     def close(self):
         self.runner.stop()
         self.server.stop()
-        self.get_logger().info(
-            f"sim stopped: {self.runner.sim_s:.1f} s simulated while busy, real-time factor "
-            f"{self.runner.real_time_factor():.2f} (sim s per wall s of stepping)")
+        # After SIGINT/SIGTERM the context is gone (no /rosout): say it on stdout.
+        print(f"[sim] sim stopped: {self.runner.sim_s:.1f} s simulated while busy, real-time factor "
+              f"{self.runner.real_time_factor():.2f} (sim s per wall s of stepping)", flush=True)
 
     # -- camera and ground truth ------------------------------------------------------
 
@@ -294,8 +294,8 @@ def main(args=None):
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.close()
         executor.shutdown()
+        node.close()
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -384,7 +384,7 @@ class SimWorld:
         self._lock = threading.RLock()
         self._finger_command = None
         self._stall_since_s = self._blocked_angle = None
-        self._render_cache = {}
+        self._motion = None
         self.reset(scene_config or SceneConfig())
 
     # -- scene ------------------------------------------------------------------------
@@ -396,7 +396,7 @@ class SimWorld:
         scene_config.validate()
         named, poses = self._draw_scene(scene_config)
         with self._lock:
-            if getattr(self, "_motion", None) is not None and not self._motion.done.is_set():
+            if self._motion is not None and not self._motion.done.is_set():
                 self._motion.finish(False, "interrupted: the scene was reloaded")
             self.w = build_world_diagram(named, self.settings)
             self.scene_config = scene_config
@@ -404,8 +404,11 @@ class SimWorld:
             self._specs = {n: spec for n, spec in named}
             self._hull_vertices = {n: spec.collision_mesh().convex_hull.vertices for n, spec in named}
             self._removed = set()
-            self._parked = {}
+            self._meshes = None  # visual meshes for the camera, loaded at the first frame
             self._make_simulator()
+            X = self.w.plant.CalcRelativeTransform(self.w.plant.CreateDefaultContext(), self.w.hand.tcp_frame,
+                                                   self.w.mount_body.body_frame())
+            self._X_tcp_mount = X.GetAsMatrix4()
             pc = self._plant_context()
             # The stand-in's mass: see STAND_IN_MASS_KG.
             from pydrake.multibody.tree import SpatialInertia
@@ -513,20 +516,12 @@ class SimWorld:
         from pydrake.multibody.math import SpatialVelocity
 
         plant, pc = self.w.plant, self._plant_context()
-        X_tcp_mount = self._X_tcp_mount()
+        X_tcp_mount = self._X_tcp_mount
         X_mount = X_task_tcp @ X_tcp_mount
         p_tcp_mount_W = X_task_tcp[:3, :3] @ X_tcp_mount[:3, 3]
         plant.SetFreeBodyPose(pc, self.w.mount_body, _rigid(X_mount))
         plant.SetFreeBodySpatialVelocity(pc, self.w.mount_body, SpatialVelocity(
             np.asarray(w_task, float), np.asarray(v_task, float) + _cross(w_task, p_tcp_mount_W)))
-
-    def _X_tcp_mount(self):
-        if not hasattr(self, "_X_tcp_mount_cache") or self._X_tcp_mount_cache[0] is not self.w:
-            plant = self.w.plant
-            ctx = plant.CreateDefaultContext()
-            X = plant.CalcRelativeTransform(ctx, self.w.hand.tcp_frame, self.w.mount_body.body_frame())
-            self._X_tcp_mount_cache = (self.w, X.GetAsMatrix4())
-        return self._X_tcp_mount_cache[1]
 
     # -- arm ----------------------------------------------------------------------
 
@@ -551,8 +546,9 @@ class SimWorld:
             return False, f"target TCP z = {p[2]:.3f} m is below the table top ({TABLE_HEIGHT_M} m)"
         lo, hi = np.asarray(self.settings.workspace_min_m), np.asarray(self.settings.workspace_max_m)
         if np.any(p < lo) or np.any(p > hi):
+            box = "..".join("(" + ", ".join(f"{v:.2f}" for v in b) + ")" for b in (lo, hi))
             return False, (f"target TCP ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m is outside the arm "
-                           f"stand-in's workspace {tuple(lo)}..{tuple(hi)} m")
+                           f"stand-in's workspace {box} m")
         return True, "reachable"
 
     def start_move(self, X_task_tcp, speed_mps: float) -> Motion:
@@ -853,10 +849,9 @@ class SimWorld:
     def _posed_visual_meshes(self):
         """(trimesh, X_task_mesh) for the table, every object in the scene and every hand link."""
         plant, pc = self.w.plant, self._plant_context()
-        cache = self._render_cache.get(id(self.w))
-        if cache is None:
-            cache = self._render_cache = {id(self.w): self._visual_meshes()}
-            cache = cache[id(self.w)]
+        if self._meshes is None:
+            self._meshes = self._visual_meshes()
+        cache = self._meshes
         out = [(cache["table"], np.eye(4))]
         for n, b in zip(self.names, self.w.object_bodies):
             if n not in self._removed:
