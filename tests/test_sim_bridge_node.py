@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped
 from gravgrasp_msgs.msg import ObjectStates
-from gravgrasp_msgs.srv import LoadScene, MoveToPose, SetObjectMass
+from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMass
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -33,7 +33,8 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
     sim.wait_for_output(r"sim ready: gripper on \S+", timeout_s=90)
     assert os.path.islink(link)
 
-    got = {}
+    got, all_states = {}, []
+    ros_node.create_subscription(ObjectStates, "object_states", all_states.append, 10)
     for name, kind, qos in (("depth/image", Image, qos_profile_sensor_data),
                             ("depth/camera_info", CameraInfo, qos_profile_sensor_data),
                             ("camera_pose", PoseStamped, qos_profile_sensor_data),
@@ -71,9 +72,18 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
     mass = call_service(ros_node, ros_node.create_client(SetObjectMass, "set_object_mass"),
                         SetObjectMass.Request(name="no_such_object", mass_kg=1.0))
     assert not mass.success and "no object named 'no_such_object'" in mass.message
-    bad_scene = call_service(ros_node, ros_node.create_client(LoadScene, "load_scene"),
-                             LoadScene.Request(seed=1, n_objects=1, arrangement="heap"), timeout_s=30)
+    load = ros_node.create_client(LoadScene, "load_scene")
+    bad_scene = call_service(ros_node, load, LoadScene.Request(seed=1, n_objects=1, arrangement="heap"), timeout_s=30)
     assert not bad_scene.success and "arrangement 'heap'" in bad_scene.message
+    scene = call_service(ros_node, load, LoadScene.Request(seed=24, n_objects=1, arrangement="packed",
+                                                           object_mass_kg=0.8), timeout_s=60)
+    assert scene.success and scene.object_names == ["obj000_cylinder"], scene.message
+    removed = call_service(ros_node, ros_node.create_client(RemoveObject, "remove_object"),
+                           RemoveObject.Request(name="obj000_cylinder"))
+    assert removed.success, removed.message
+    n = len(all_states)
+    assert spin_until(ros_node, lambda: len(all_states) > n + 1, 15)
+    assert list(all_states[-1].names) == []
 
     # the emulated 2F-85, exactly as a real one: nothing between the fingers
     with Robotiq2F85(str(link)) as gripper:

@@ -27,6 +27,7 @@ import math
 import os
 import sys
 import threading
+import time
 
 import numpy as np
 import rclpy
@@ -239,9 +240,12 @@ class SimNode(Node):
             response.success, response.message = False, message
             return response
         motion = self.world.start_move(X, speed or self.default_speed)
-        if not motion.done.wait(timeout=motion.duration_s / 0.05 + 10.0):  # even at 5% real time
-            response.success, response.message = False, "motion did not finish: the simulation is stalled"
-            return response
+        deadline = time.monotonic() + motion.duration_s / 0.05 + 10.0  # even at 5% of real time
+        while not motion.done.wait(timeout=0.2):
+            if self.runner.error is not None or time.monotonic() > deadline:
+                why = f"the simulation stopped: {self.runner.error}" if self.runner.error else "the simulation is stalled"
+                response.success, response.message = False, f"motion did not finish: {why}"
+                return response
         response.success, response.message = motion.result
         return response
 

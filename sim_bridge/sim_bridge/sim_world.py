@@ -152,18 +152,6 @@ class WorldSettings:
 
 
 @dataclass
-class CameraIntrinsics:
-    """Pinhole intrinsics in pixels (same fields as gravgrasp_detector.tsdf.CameraIntrinsics)."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-
-@dataclass
 class ObjectState:
     name: str
     X_task_object: np.ndarray  # 4x4
@@ -830,7 +818,10 @@ class SimWorld:
         c = self.settings.camera
         return look_at(c.position_m, c.target_m)
 
-    def intrinsics(self) -> CameraIntrinsics:
+    def intrinsics(self):
+        """gravgrasp_detector.tsdf.CameraIntrinsics of the camera (what TSDFVolume.integrate takes)."""
+        from gravgrasp_detector.tsdf import CameraIntrinsics
+
         c = self.settings.camera
         return CameraIntrinsics(c.width, c.height, c.focal_px, c.focal_px, (c.width - 1) / 2, (c.height - 1) / 2)
 
