@@ -53,7 +53,7 @@ def _job(args):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench_sim", description=__doc__.split("\n\n")[0])
-    p.add_argument("--evals", type=int, default=3, help="grasps per (mode, setting) per worker")
+    p.add_argument("--evals", type=int, default=2, help="grasps per (mode, setting) per worker")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     p.add_argument("--skip-ramp-rates", action="store_true")
     a = p.parse_args(argv)
