@@ -10,6 +10,7 @@ from gravgrasp_msgs.msg import ObjectStates
 from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMass
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import Trigger
 
 from robotiq_driver.gripper_client import Robotiq2F85
 from ros_testing import call_service, spin_until
@@ -62,6 +63,15 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
     assert near.reachable and not near.success
     moved = call(target(0.15, 0.15, 0.45))
     assert moved.reachable and moved.success, moved.message
+    # a slow motion, halted from another call (the executor's emergency stop would)
+    future = move.call_async(MoveToPose.Request(target=target(0.15, 0.15, 0.30), speed_mps=0.02))
+    stop = ros_node.create_client(Trigger, "stop_motion")
+    stopped = None
+    while stopped is None or not stopped.success:  # until the motion has started
+        assert not future.done(), future.result()
+        stopped = call_service(ros_node, stop, Trigger.Request())
+    assert spin_until(ros_node, future.done, 15)
+    assert not future.result().success and future.result().message == "stopped on request"
     nan = call(target(math.nan, 0.15, 0.45))
     assert not nan.success and "NaN" in nan.message
     frame = call(target(0.15, 0.15, 0.45, frame="base_link"))

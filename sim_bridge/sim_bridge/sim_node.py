@@ -14,6 +14,7 @@ A thin ROS adapter around `sim_world.SimWorld` (see there for the physics):
 | `load_scene` | gravgrasp_msgs/LoadScene | new scene (hand back home) |
 | `set_object_mass` | gravgrasp_msgs/SetObjectMass | |
 | `remove_object` | gravgrasp_msgs/RemoveObject | |
+| `stop_motion` | std_srvs/Trigger | halts the running motion at once (its `move_to_pose` answers `success: false`) |
 
 The gripper is not a ROS interface: a Robotiq 2F-85 register emulator answers Modbus
 RTU on a pseudo-terminal linked at `gripper_link`, its fingers moved by the simulated
@@ -41,6 +42,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import Trigger
 
 from robotiq_driver.gripper_emulator import GripperEmulator
 from robotiq_driver.pty_modbus_server import PtyModbusServer
@@ -138,6 +140,7 @@ class SimNode(Node):
         self.create_service(LoadScene, "load_scene", self._on_load, callback_group=services)
         self.create_service(SetObjectMass, "set_object_mass", self._on_set_mass, callback_group=services)
         self.create_service(RemoveObject, "remove_object", self._on_remove, callback_group=services)
+        self.create_service(Trigger, "stop_motion", self._on_stop, callback_group=services)
         self._scene_lock = threading.Lock()
         self.get_logger().info(f"sim ready: gripper on {self.server.port}")
 
@@ -247,6 +250,11 @@ class SimNode(Node):
                 response.success, response.message = False, f"motion did not finish: {why}"
                 return response
         response.success, response.message = motion.result
+        return response
+
+    def _on_stop(self, request, response):
+        response.success = self.world.stop_motion()
+        response.message = "motion stopped" if response.success else "no motion was running"
         return response
 
     def _on_load(self, request, response):

@@ -558,6 +558,17 @@ class SimWorld:
                 self._motion = m
             return m
 
+    def stop_motion(self) -> bool:
+        """Halt the running motion at once where the reference is now (an arm's protective
+        stop); it ends with success False, "stopped on request". False if none ran."""
+        with self._lock:
+            m = self._motion
+            if m is None or m.done.is_set():
+                return False
+            self._hold = m.reference(self.time_s)[0]
+            m.finish(False, "stopped on request")
+            return True
+
     def move_tcp(self, X_task_tcp, speed_mps: float, timeout_s: float = 30.0) -> tuple:
         """Move along a straight line, stepping the simulation here; (success, message)."""
         m = self.start_move(X_task_tcp, speed_mps)
