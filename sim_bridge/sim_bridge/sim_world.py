@@ -44,6 +44,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
 
 from . import hand_model
 from .grasp_simulation import SimSettings, driver_torque_nm, proximity_properties
@@ -175,63 +176,57 @@ class FingerCommand:
 # Drake systems
 
 
-def _finger_servo_class():
-    from pydrake.systems.framework import BasicVector, LeafSystem
+class FingerServoSystem(LeafSystem):
+    """The 2F-85's motor on both driver joints (the coupler constraint ties them).
 
-    class FingerServoSystem(LeafSystem):
-        """The 2F-85's motor on both driver joints (the coupler constraint ties them).
+    Discrete state: the reference angle, which moves towards the target angle at the
+    commanded rate every time step. Numeric parameters: [target angle rad, rate
+    rad/s, torque limit N m]. Output: tau = clip(kp (ref - q), ±limit): the full
+    torque (the grip force) is reached 2 mm short of the reference at 40 N. The damping
+    is the driver joints' own (`DRIVER_DAMPING_NMS_PER_RAD`, set in
+    build_world_diagram): SAP treats joint damping implicitly, whereas a damping term
+    here is explicit and made the light linkage chatter at ±14 rad/s every step.
+    """
 
-        Discrete state: the reference angle, which moves towards the target angle at the
-        commanded rate every time step. Numeric parameters: [target angle rad, rate
-        rad/s, torque limit N m]. Output: tau = clip(kp (ref - q), ±limit): the full
-        torque (the grip force) is reached 2 mm short of the reference at 40 N. The damping
-        is the driver joints' own (`DRIVER_DAMPING_NMS_PER_RAD`, set in
-        build_world_diagram): SAP treats joint damping implicitly, whereas a damping term
-        here is explicit and made the light linkage chatter at ±14 rad/s every step.
-        """
+    KP_NM_PER_RAD = 100.0  # 200 overshoots, 400 chatters (dt 2 ms)
 
-        KP_NM_PER_RAD = 100.0  # 200 overshoots, 400 chatters (dt 2 ms)
+    def __init__(self, plant, hand, time_step_s):
+        super().__init__()
+        self._iq = hand.driver_joints[0].position_start()
+        self._dt = time_step_s
+        self._state = self.DeclareVectorInputPort("state", plant.num_multibody_states())
+        self._ref = self.DeclareDiscreteState(1)
+        self._params = self.DeclareNumericParameter(BasicVector([0.0, 1.0, 1.0]))
+        self.DeclarePeriodicDiscreteUpdateEvent(time_step_s, 0.0, self._update)
+        self.DeclareVectorOutputPort("actuation", 2, self._calc)
 
-        def __init__(self, plant, hand, time_step_s):
-            super().__init__()
-            self._iq = hand.driver_joints[0].position_start()
-            self._iv = plant.num_positions() + hand.driver_joints[0].velocity_start()
-            self._dt = time_step_s
-            self._state = self.DeclareVectorInputPort("state", plant.num_multibody_states())
-            self._ref = self.DeclareDiscreteState(1)
-            self._params = self.DeclareNumericParameter(BasicVector([0.0, 1.0, 1.0]))
-            self.DeclarePeriodicDiscreteUpdateEvent(time_step_s, 0.0, self._update)
-            self.DeclareVectorOutputPort("actuation", 2, self._calc)
+    def set_command(self, context, target_rad, rate_rad_s, torque_limit_nm):
+        context.get_mutable_numeric_parameter(self._params).SetFromVector(
+            [target_rad, rate_rad_s, torque_limit_nm])
 
-        def set_command(self, context, target_rad, rate_rad_s, torque_limit_nm):
-            context.get_mutable_numeric_parameter(self._params).SetFromVector(
-                [target_rad, rate_rad_s, torque_limit_nm])
+    def set_reference(self, context, angle_rad):
+        context.get_mutable_discrete_state(self._ref).SetFromVector([angle_rad])
 
-        def set_reference(self, context, angle_rad):
-            context.get_mutable_discrete_state(self._ref).SetFromVector([angle_rad])
+    def reference(self, context) -> float:
+        return context.get_discrete_state(self._ref).GetAtIndex(0)
 
-        def reference(self, context) -> float:
-            return context.get_discrete_state(self._ref).GetAtIndex(0)
+    def command(self, context):
+        return context.get_numeric_parameter(self._params).CopyToVector()
 
-        def command(self, context):
-            return context.get_numeric_parameter(self._params).CopyToVector()
+    def _update(self, context, discrete_state):
+        target, rate, _ = context.get_numeric_parameter(self._params).CopyToVector()
+        ref = context.get_discrete_state(self._ref).GetAtIndex(0)
+        step = rate * self._dt
+        discrete_state.get_mutable_vector(self._ref).SetAtIndex(
+            0, ref + float(np.clip(target - ref, -step, step)))
 
-        def _update(self, context, discrete_state):
-            target, rate, _ = context.get_numeric_parameter(self._params).CopyToVector()
-            ref = context.get_discrete_state(self._ref).GetAtIndex(0)
-            step = rate * self._dt
-            discrete_state.get_mutable_vector(self._ref).SetAtIndex(
-                0, ref + float(np.clip(target - ref, -step, step)))
-
-        def _calc(self, context, output):
-            x = self._state.Eval(context)
-            ref = context.get_discrete_state(self._ref).GetAtIndex(0)
-            limit = context.get_numeric_parameter(self._params).GetAtIndex(2)
-            tau = self.KP_NM_PER_RAD * (ref - x[self._iq])
-            tau = float(np.clip(tau, -limit, limit))
-            output.SetFromVector([tau, tau])
-
-    return FingerServoSystem
+    def _calc(self, context, output):
+        x = self._state.Eval(context)
+        ref = context.get_discrete_state(self._ref).GetAtIndex(0)
+        limit = context.get_numeric_parameter(self._params).GetAtIndex(2)
+        tau = self.KP_NM_PER_RAD * (ref - x[self._iq])
+        tau = float(np.clip(tau, -limit, limit))
+        output.SetFromVector([tau, tau])
 
 
 @dataclass
@@ -286,7 +281,7 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
     for j in hand.driver_joints:
         j.set_default_damping(DRIVER_DAMPING_NMS_PER_RAD)
     plant.Finalize()
-    servo = builder.AddSystem(_finger_servo_class()(plant, hand, s.time_step_s))
+    servo = builder.AddSystem(FingerServoSystem(plant, hand, s.time_step_s))
     builder.Connect(plant.get_state_output_port(), servo.get_input_port())
     builder.Connect(servo.get_output_port(), plant.get_actuation_input_port())
     diagram = builder.Build()
