@@ -71,6 +71,25 @@ def test_fingers_close_fully_on_nothing_and_an_obstacle_stops_the_arm():
     assert not reading.blocked and reading.width_m == 0.04
     assert world.finger_width_m() == pytest.approx(0.04, abs=0.0015)
 
+    # straight-line motion with a turn: yaw 90 deg and tilted 30 deg, then back
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("zx", [90, 30], degrees=True).as_matrix() @ R_TOP_DOWN
+    turned = pose(R, (0.2, 0.1, 0.3))
+    start = world.tcp_pose()[:3, 3]
+    motion = world.start_move(turned, 0.25)
+    world.advance(motion.duration_s / 2)
+    mid = world.tcp_pose()[:3, 3]
+    line = (turned[:3, 3] - start) / np.linalg.norm(turned[:3, 3] - start)
+    off_line = np.linalg.norm((mid - start) - ((mid - start) @ line) * line)
+    assert off_line < 1e-4 and 0.3 < (mid - start) @ line / np.linalg.norm(turned[:3, 3] - start) < 0.7
+    ok, message = world.move_tcp(turned, 0.25)  # refused: one motion at a time
+    assert not ok and "another motion" in message
+    while not motion.done.is_set():
+        world.advance(0.05)
+    assert motion.result[0], motion.result
+    np.testing.assert_allclose(world.tcp_pose(), turned, atol=1e-6)
+
     # the stand-in cannot push the palm through the box (and the box through the table)
     close_fingers(world.finger_plant(), width_m=0.04, target_m=0.085)
     box_top = TABLE_HEIGHT_M + 0.08
