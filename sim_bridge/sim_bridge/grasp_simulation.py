@@ -148,8 +148,8 @@ class GripForceController(LeafSystem):
 
 
 def driver_torque_nm(grip_force_n: float) -> float:
-    """Driver torque that squeezes `grip_force_n` between the pads (linear fit of the
-    calibration in tests/test_sim_hand.py, parallel pads, 20–70 mm widths)."""
+    """Driver torque that squeezes `grip_force_n` between parallel pads 50 mm apart
+    (`measure_squeeze_force_n`; -8%..+17% over 10-80 mm, README)."""
     return grip_force_n * hand_model.DRIVER_TORQUE_PER_NEWTON_NM
 
 
@@ -191,7 +191,7 @@ class GraspSimulator:
 
     # --- helpers -------------------------------------------------------------------
     def _contacts(self, root):
-        """Hand link names touching the object (and the object's COM speed)."""
+        """Names of the hand links touching the object."""
         pc = self.plant.GetMyContextFromRoot(root)
         results = self.plant.get_contact_results_output_port().Eval(pc)
         links = set()
