@@ -40,6 +40,7 @@ def test_deep_cylinder_is_power_grasp_and_beats_fingertip_grasp(cylinder_sim):
     power = cylinder_sim.evaluate(cylinder_pose(-0.02))  # axis 20 mm behind the TCP
     precision = cylinder_sim.evaluate(cylinder_pose(0.0))  # axis at the pinch point
     assert power.grasped and power.mode == "power", power
+    assert power.num_contacts >= 3  # palm + both pads
     assert set(power.contact_links) & (set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS))
     # distal links wrap: the coupler leaves its stop (it stays at 0 in a parallel pinch)
     assert power.finger_joint_angles["left_coupler"] < -0.05

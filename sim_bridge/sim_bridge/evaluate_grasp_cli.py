@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     out = sim.evaluate(a.pose)
     print(f"object: {obj.name} mass {obj.mass_kg:.3f} kg")
     print(f"grasped: {out.grasped}  mode: {out.mode}" + (f"  ({out.reason})" if out.reason else ""))
-    print(f"contacts: {', '.join(out.contact_links) or '-'}")
+    print(f"contacts: {out.num_contacts} on {', '.join(out.contact_links) or '-'}")
     print("finger joints [rad]: " + " ".join(f"{k}={v:.3f}" for k, v in out.finger_joint_angles.items()))
     for name, s, dep in zip(DIRECTION_NAMES, out.scores_n, out.departed):
         cap = "" if dep or not out.grasped else f"  (held to the {settings.max_force_n:.0f} N cap)"

@@ -97,6 +97,7 @@ class GraspOutcome:
     X_object_tcp_settled: np.ndarray  # 4x4, TCP pose in the object frame after settling
     scores_n: np.ndarray  # (6,) +x, -x, +y, -y, +z, -z of the TCP frame; 0 if not grasped
     contact_links: tuple = ()
+    num_contacts: int = 0  # hand-object contact patches (hydroelastic) or points
     finger_joint_angles: dict = field(default_factory=dict)
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
@@ -192,23 +193,28 @@ class GraspSimulator:
     # --- helpers -------------------------------------------------------------------
     def _contacts(self, root):
         """Names of the hand links touching the object."""
+        return self._contact_summary(root)[0]
+
+    def _contact_summary(self, root):
+        """(names of the hand links touching the object, number of hand-object contacts:
+        hydroelastic patches or contact points)."""
         pc = self.plant.GetMyContextFromRoot(root)
         results = self.plant.get_contact_results_output_port().Eval(pc)
-        links = set()
+        links, n = set(), 0
         obj_idx = self.object_body.index()
         for i in range(results.num_hydroelastic_contacts()):
-            info = results.hydroelastic_contact_info(i)
-            s = info.contact_surface()
+            s = results.hydroelastic_contact_info(i).contact_surface()
             for a, b in ((s.id_M(), s.id_N()), (s.id_N(), s.id_M())):
                 if a in self._object_geoms and b in self.hand.geometry_links:
                     links.add(self.hand.geometry_links[b])
+                    n += 1
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
             for a, b in ((info.bodyA_index(), info.bodyB_index()), (info.bodyB_index(), info.bodyA_index())):
-                if a == obj_idx:
+                if a == obj_idx and b != obj_idx:
                     links.add(self.plant.get_body(b).name())
-        links.discard(self.object_body.name())
-        return links
+                    n += 1
+        return links, n
 
     def _initial_collision(self, root) -> bool:
         sg_ctx = self.scene_graph.GetMyContextFromRoot(root)
@@ -296,7 +302,8 @@ class GraspSimulator:
         s = self.settings
         wall0 = time.perf_counter()
         root, reason = self.close(X_object_tcp)
-        links = self._contacts(root) if not reason.startswith("hand collides") else set()
+        links, n_contacts = (self._contact_summary(root) if not reason.startswith("hand collides")
+                             else (set(), 0))
         left = any(l.startswith("left_") for l in links)
         right = any(l.startswith("right_") for l in links)
         grasped = left and right and not reason
@@ -325,7 +332,7 @@ class GraspSimulator:
             root.SetTimeStateAndParametersFrom(settled)
         return GraspOutcome(
             grasped=grasped, mode=mode, X_object_tcp_settled=X_ot, scores_n=scores,
-            contact_links=tuple(sorted(links)), finger_joint_angles=angles,
+            contact_links=tuple(sorted(links)), num_contacts=n_contacts, finger_joint_angles=angles,
             sim_time_s=sim_time, wall_time_s=time.perf_counter() - wall0,
             departed=departed, reason=reason)
 
