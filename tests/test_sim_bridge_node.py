@@ -10,9 +10,10 @@ from gravgrasp_msgs.msg import ObjectStates
 from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMass
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 
 from robotiq_driver.gripper_client import Robotiq2F85
+from robotiq_driver.modbus_client import ModbusTimeout
 from ros_testing import call_service, spin_until
 
 
@@ -102,6 +103,15 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
         assert not state.object_detected and gripper.width_m(state) == pytest.approx(0.0, abs=1e-3)
         state = gripper.move_and_wait(0.085, speed_mps=0.15, force_n=40.0, timeout_s=10.0)
         assert gripper.width_m(state) == pytest.approx(0.085, abs=1e-3)
+        # the test hooks: a gripper fault, and a gripper that stops answering
+        fault = call_service(ros_node, ros_node.create_client(Trigger, "inject_gripper_fault"), Trigger.Request())
+        assert fault.success and gripper.read_state().fault == 0x0E
+        silent = ros_node.create_client(SetBool, "set_gripper_silent")
+        assert call_service(ros_node, silent, SetBool.Request(data=True)).success
+        with pytest.raises(ModbusTimeout):
+            gripper.read_state()
+        assert call_service(ros_node, silent, SetBool.Request(data=False)).success
+        assert gripper.read_state().fault == 0x0E
 
     assert sim.alive()
     assert sim.stop() == 0

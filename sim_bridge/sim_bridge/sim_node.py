@@ -15,6 +15,8 @@ A thin ROS adapter around `sim_world.SimWorld` (see there for the physics):
 | `set_object_mass` | gravgrasp_msgs/SetObjectMass | |
 | `remove_object` | gravgrasp_msgs/RemoveObject | |
 | `stop_motion` | std_srvs/Trigger | halts the running motion at once (its `move_to_pose` answers `success: false`) |
+| `inject_gripper_fault` | std_srvs/Trigger | test hook: the emulated 2F-85 raises gFLT 0x0E (overcurrent), fingers stop until a reset |
+| `set_gripper_silent` | std_srvs/SetBool | test hook: true = the gripper stops answering Modbus (a cut cable), false = answers again |
 
 The gripper is not a ROS interface: a Robotiq 2F-85 register emulator answers Modbus
 RTU on a pseudo-terminal linked at `gripper_link`, its fingers moved by the simulated
@@ -42,12 +44,14 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 
 from robotiq_driver.gripper_emulator import GripperEmulator
 from robotiq_driver.pty_modbus_server import PtyModbusServer
 
 from .grasp_simulation import SimSettings
+
+OVERCURRENT_FAULT = 0x0E  # gFLT: a major fault, the fingers stop until a reset
 from .sim_world import CameraSettings, RealTimeRunner, SceneConfig, SimWorld, WorldSettings
 
 
@@ -141,6 +145,9 @@ class SimNode(Node):
         self.create_service(SetObjectMass, "set_object_mass", self._on_set_mass, callback_group=services)
         self.create_service(RemoveObject, "remove_object", self._on_remove, callback_group=services)
         self.create_service(Trigger, "stop_motion", self._on_stop, callback_group=services)
+        # Test hooks: the faults a real 2F-85 and its cable produce, for the executor's tests.
+        self.create_service(Trigger, "inject_gripper_fault", self._on_fault, callback_group=services)
+        self.create_service(SetBool, "set_gripper_silent", self._on_silent, callback_group=services)
         self._scene_lock = threading.Lock()
         self.get_logger().info(f"sim ready: gripper on {self.server.port}")
 
@@ -250,6 +257,17 @@ class SimNode(Node):
                 response.success, response.message = False, f"motion did not finish: {why}"
                 return response
         response.success, response.message = motion.result
+        return response
+
+    def _on_fault(self, request, response):
+        self.emulator.inject_fault(OVERCURRENT_FAULT)
+        response.success, response.message = True, "gripper fault 0x0E (overcurrent) raised; a reset (rACT = 0) clears it"
+        return response
+
+    def _on_silent(self, request, response):
+        self.server.respond = not request.data
+        response.success = True
+        response.message = "the gripper stops answering Modbus" if request.data else "the gripper answers again"
         return response
 
     def _on_stop(self, request, response):
