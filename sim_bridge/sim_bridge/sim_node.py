@@ -138,16 +138,16 @@ class SimNode(Node):
         self.pub_states = self.create_publisher(ObjectStates, "object_states", 10)
         self._render_key = None
         self._depth = None
-        self.create_timer(1.0 / self.rate_hz, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(1.0 / self.rate_hz, self._publish_guarded, callback_group=MutuallyExclusiveCallbackGroup())
         services = ReentrantCallbackGroup()
-        self.create_service(MoveToPose, "move_to_pose", self._on_move, callback_group=services)
-        self.create_service(LoadScene, "load_scene", self._on_load, callback_group=services)
-        self.create_service(SetObjectMass, "set_object_mass", self._on_set_mass, callback_group=services)
-        self.create_service(RemoveObject, "remove_object", self._on_remove, callback_group=services)
-        self.create_service(Trigger, "stop_motion", self._on_stop, callback_group=services)
+        self.create_service(MoveToPose, "move_to_pose", self._guarded(self._on_move), callback_group=services)
+        self.create_service(LoadScene, "load_scene", self._guarded(self._on_load), callback_group=services)
+        self.create_service(SetObjectMass, "set_object_mass", self._guarded(self._on_set_mass), callback_group=services)
+        self.create_service(RemoveObject, "remove_object", self._guarded(self._on_remove), callback_group=services)
+        self.create_service(Trigger, "stop_motion", self._guarded(self._on_stop), callback_group=services)
         # Test hooks: the faults a real 2F-85 and its cable produce, for the executor's tests.
-        self.create_service(Trigger, "inject_gripper_fault", self._on_fault, callback_group=services)
-        self.create_service(SetBool, "set_gripper_silent", self._on_silent, callback_group=services)
+        self.create_service(Trigger, "inject_gripper_fault", self._guarded(self._on_fault), callback_group=services)
+        self.create_service(SetBool, "set_gripper_silent", self._guarded(self._on_silent), callback_group=services)
         self._scene_lock = threading.Lock()
         self.get_logger().info(f"sim ready: gripper on {self.server.port}")
 
@@ -157,6 +157,25 @@ class SimNode(Node):
         # After SIGINT/SIGTERM the context is gone (no /rosout): say it on stdout.
         print(f"[sim] sim stopped: {self.runner.sim_s:.1f} s simulated while busy, real-time factor "
               f"{self.runner.real_time_factor():.2f} (sim s per wall s of stepping)", flush=True)
+
+    # -- robustness: an unexpected error answers or logs; it never ends the node ---------
+
+    def _guarded(self, handler):
+        def call(request, response):
+            try:
+                return handler(request, response)
+            except Exception as e:  # a bug or a Drake error: say so, keep serving
+                self.get_logger().error(f"{handler.__name__}: {type(e).__name__}: {e}")
+                response.success = False
+                response.message = f"internal error ({type(e).__name__}: {e}); the sim keeps running"
+                return response
+        return call
+
+    def _publish_guarded(self):
+        try:
+            self._publish()
+        except Exception as e:
+            self.get_logger().error(f"publishing failed: {type(e).__name__}: {e}", throttle_duration_sec=5.0)
 
     # -- camera and ground truth ------------------------------------------------------
 
@@ -282,6 +301,11 @@ class SimNode(Node):
         try:
             with self._scene_lock:
                 names = self.world.reset(cfg)
+                if self.runner.error is not None:  # a new world: step it again
+                    self.get_logger().warn(f"restarting the simulation thread after: {self.runner.error}")
+                    self.runner.stop()
+                    self.runner = RealTimeRunner(self.world, self.finger_plant,
+                                                 real_time_rate=self.runner.real_time_rate).start()
         except Exception as e:  # bad request or unreadable objects: keep the current scene
             response.success, response.message = False, f"scene not loaded ({type(e).__name__}: {e}); the previous scene stays"
             return response
