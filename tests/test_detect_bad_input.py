@@ -127,6 +127,13 @@ def test_tsdf_node_reports_each_bad_input_once_and_keeps_answering(ros_node, ros
     assert ros_testing.call_service(node, reset, Trigger.Request()).success
     toggle = node.create_client(SetBool, "/tsdf/set_integrating")
     assert ros_testing.call_service(node, toggle, SetBool.Request(data=False)).message == "paused"
+    published = len(volumes)
+    for _ in range(5):
+        send(good)
+        ros_testing.spin_until(node, lambda: False, 0.2)
+    assert len(volumes) == published, "a paused tsdf node fused and published"
+    assert ros_testing.call_service(node, toggle, SetBool.Request(data=True)).message == "integrating"
+    assert ros_testing.spin_until(node, lambda: (send(good), ros_testing.spin_until(node, lambda: len(volumes) > published, 0.5))[1], 15)
     assert tsdf.alive()
 
 
@@ -165,6 +172,37 @@ def test_detect_node_reports_each_bad_volume_once_and_keeps_answering(ros_node, 
     for _, text in cases:
         assert count(detect, text) == 1, f"{text!r} logged {count(detect, text)} times"
     assert detect.alive()
+
+
+def test_detect_processes_only_the_latest_volume(ros_node, ros_process, model_path):
+    """A burst of volumes faster than detection: no queue; the newest one is always answered."""
+    from gravgrasp_msgs.msg import GraspArray
+    from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
+
+    node = ros_node
+    detect = ros_process("gravgrasp_detector", "detect", params={"model_path": str(model_path), "validness_threshold": 0.49})
+    pub = node.create_publisher(TSDFVolumeMsg, "/tsdf", VOLUME_QOS)
+    grasps = []
+    node.create_subscription(GraspArray, "/grasps", grasps.append, 100)
+    assert ros_testing.wait_for_subscriber(node, "/tsdf", 30)
+    assert ros_testing.wait_for_publisher(node, "/grasps", 30)
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[:, :, 3:7], grid[:, :, 7:11] = 0.3, 0.7
+    msg = TSDFVolumeMsg(resolution=40, voxel_size_m=0.0075, truncation_m=0.03)
+    msg.header.frame_id = "task"
+    msg.origin.orientation.w = 1.0
+    msg.tsdf, msg.weights = grid.ravel(), (grid > 0).astype(np.float32).ravel()
+    burst = 30
+    for n in range(burst):
+        msg.header.stamp = stamp(n)
+        pub.publish(msg)
+    last = stamp(burst - 1)
+    assert ros_testing.spin_until(node, lambda: any(g.header.stamp == last for g in grasps), 30), detect.output()[-2000:]
+    ros_testing.spin_until(node, lambda: False, 1.0)  # anything still queued would arrive now
+    answered = [g.header.stamp.sec for g in grasps]
+    assert answered == sorted(answered), "volumes answered out of order"
+    assert len(answered) < burst, f"all {burst} volumes of a burst were processed: a queue, not latest-only"
+    assert answered[-1] == last.sec
 
 
 def _exit_line(process):

@@ -1,6 +1,8 @@
 """ROS 2 node `tsdf`: fuses depth images into the workspace TSDF and publishes it.
 
-Subscribes (sensor-data QoS; names relative, remap them to the camera):
+Subscribes (sensor-data QoS, overridable with the standard qos_overrides parameters,
+e.g. qos_overrides./camera/depth/image.subscription.reliability:=reliable; names are
+relative, remap them to the camera):
   depth/image        sensor_msgs/Image, 16UC1 (mm) or 32FC1 (m), REP-118
   depth/camera_info  sensor_msgs/CameraInfo of that image
   camera_pose        geometry_msgs/PoseStamped, pose of the camera optical frame in the
@@ -30,6 +32,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
@@ -127,15 +130,21 @@ class TSDFNode(Node):
         self.dirty = False
         self.last_stamp = None
         self.static_T = None
+        # Inputs default to sensor-data QoS (best effort, as camera drivers publish);
+        # qos_overrides.<topic>.subscription.reliability:=reliable for reliable sources.
+        overridable = QoSOverridingOptions.with_default_policies()
         if self.pose_source == "parameter":
             self.static_T = self._static_pose(static_pose)
         elif self.pose_source != "topic":
             raise InputError("config", f"camera_pose_source is {self.pose_source!r}: use 'topic' or 'parameter'")
         else:
-            self.create_subscription(PoseStamped, "camera_pose", self._on_pose, qos_profile_sensor_data)
+            self.create_subscription(PoseStamped, "camera_pose", self._on_pose, qos_profile_sensor_data,
+                                     qos_overriding_options=overridable)
 
-        self.create_subscription(Image, "depth/image", self._on_depth, qos_profile_sensor_data)
-        self.create_subscription(CameraInfo, "depth/camera_info", self._on_camera_info, qos_profile_sensor_data)
+        self.create_subscription(Image, "depth/image", self._on_depth, qos_profile_sensor_data,
+                                 qos_overriding_options=overridable)
+        self.create_subscription(CameraInfo, "depth/camera_info", self._on_camera_info, qos_profile_sensor_data,
+                                 qos_overriding_options=overridable)
         self.publisher = self.create_publisher(TSDFVolumeMsg, "tsdf", VOLUME_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/set_integrating", self._on_set_integrating)
@@ -196,6 +205,7 @@ class TSDFNode(Node):
             self.problems.report(e.cause, str(e))
             return
         self.problems.clear("encoding", "malformed_image")
+        self.get_logger().debug(f"depth {_stamp_s(msg.header.stamp):.3f} received, {len(self.pending)} pending")
         self.pending.append((time.monotonic(), msg.header, depth))
         self._integrate_pending()
 
@@ -234,6 +244,7 @@ class TSDFNode(Node):
             self.problems.clear()  # a fused frame: every input is fine again
             self.dirty = True
             self.last_stamp = header.stamp
+            self.get_logger().debug(f"depth {_stamp_s(header.stamp):.3f} fused ({self.volume.frames_integrated} frames)")
 
     def _expire_pending(self):
         now = time.monotonic()
