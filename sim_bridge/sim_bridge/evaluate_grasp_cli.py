@@ -11,6 +11,7 @@ disturbance-rejection scores [N] along ±x, ±y, ±z of the TCP frame.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 import numpy as np
@@ -95,22 +96,28 @@ def main(argv=None) -> int:
     p.add_argument("--pose", type=parse_pose, default="0,0,0,0,0,0",
                    help="TCP pose in the object frame: x,y,z[m],roll,pitch,yaw[deg]")
     p.add_argument("--contact-model", choices=("hydroelastic", "point"), default="hydroelastic")
-    p.add_argument("--dt", type=float, default=SimSettings.time_step_s, help="time step [s]")
-    p.add_argument("--ramp-rate", type=float, default=SimSettings.force_ramp_rate_n_s, help="N/s")
+    p.add_argument("--labels", action="store_true",
+                   help="label-quality settings (SimSettings.for_labels(): dt 1 ms, converged scores)")
+    p.add_argument("--dt", type=float, help=f"time step [s] (default {SimSettings.time_step_s})")
+    p.add_argument("--ramp-rate", type=float, help=f"N/s (default {SimSettings.force_ramp_rate_n_s})")
     p.add_argument("--grip-force", type=float, default=SimSettings.grip_force_n, help="N")
     p.add_argument("--image", help="save a picture of the settled grasp (PNG)")
     a = p.parse_args(argv)
     try:
         obj = parse_object_arg(a.object, a.mass_kg, a.density_kg_m3)
-        settings = SimSettings(time_step_s=a.dt, contact_model=a.contact_model,
-                               force_ramp_rate_n_s=a.ramp_rate, grip_force_n=a.grip_force)
+        base = SimSettings.for_labels() if a.labels else SimSettings()
+        settings = dataclasses.replace(
+            base, contact_model=a.contact_model, grip_force_n=a.grip_force,
+            time_step_s=a.dt or base.time_step_s,
+            force_ramp_rate_n_s=a.ramp_rate or base.force_ramp_rate_n_s)
         settings.validate()
     except (ObjectError, ValueError) as e:
         print(f"evaluate_grasp: {e}", file=sys.stderr)
         return 2
     sim = GraspSimulator(obj, settings)
     out = sim.evaluate(a.pose)
-    print(f"object: {obj.name} mass {obj.mass_kg:.3f} kg")
+    print(f"object: {obj.name} mass {obj.mass_kg:.3f} kg  ({settings.contact_model}, "
+          f"dt {settings.time_step_s * 1000:g} ms, ramp {settings.force_ramp_rate_n_s:g} N/s)")
     print(f"grasped: {out.grasped}  mode: {out.mode}" + (f"  ({out.reason})" if out.reason else ""))
     print(f"contacts: {out.num_contacts} on {', '.join(out.contact_links) or '-'}")
     print("finger joints [rad]: " + " ".join(f"{k}={v:.3f}" for k, v in out.finger_joint_angles.items()))
