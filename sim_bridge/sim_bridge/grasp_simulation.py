@@ -70,8 +70,8 @@ class SimSettings:
 
     @classmethod
     def for_labels(cls, **overrides) -> "SimSettings":
-        """dt 1 ms, 400 N/s: scores within 2% of dt 0.5 ms and within 2.5% of 200 N/s,
-        except pushing along the closing axis (8%) (README)."""
+        """dt 1 ms, 400 N/s: scores within 2% of dt 0.5 ms (bar a capped direction) and
+        within 2.5% of 200 N/s, except pushing along the closing axis (8%) (README)."""
         return cls(**{"time_step_s": 1e-3, "force_ramp_rate_n_s": 400.0, **overrides})
 
     def effective_relaxation_time_s(self) -> float:
