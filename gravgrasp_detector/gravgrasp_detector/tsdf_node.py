@@ -126,7 +126,9 @@ class TSDFNode(Node):
         self.integrating = True
         self.camera_info = None
         self.poses = collections.deque(maxlen=200)  # (stamp_s, T_task_camera)
-        self.pending = collections.deque()  # (received monotonic s, header, depth)
+        # (received monotonic s, header, depth) waiting for CameraInfo/pose; bounded so a
+        # missing CameraInfo cannot pile up images (the oldest is dropped first).
+        self.pending = collections.deque(maxlen=30)
         self.dirty = False
         self.last_stamp = None
         self.static_T = None
