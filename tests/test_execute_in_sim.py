@@ -12,9 +12,10 @@ import time
 import numpy as np
 import pytest
 from gravgrasp_msgs.msg import ObjectStates, TSDFVolume
-from gravgrasp_msgs.srv import ExecuteGrasp
+from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
 from scipy.spatial.transform import Rotation
-from std_srvs.srv import SetBool
+from std_msgs.msg import Bool
+from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_detector.tsdf_node import VOLUME_QOS
 from ros_testing import BackgroundSpin, spin_until, wait_until
@@ -113,3 +114,47 @@ def test_refusals_then_a_successful_lift(world):
     assert first.result_code == R.SUCCESS, first.message
     assert wait_until(lambda: seen["states"].lifted[0], 10), "object not lifted in the ground truth"
     assert seen["states"].height_above_table_m[0] > 0.08
+
+
+def test_gripper_fault_mid_grasp_and_emergency_stop(world):
+    node, seen, call = world["node"], world["seen"], world["spin"].call
+    # Put the scene back as it was (the previous test lifted the box) and re-fuse it.
+    load = call(node.create_client(LoadScene, "load_scene"),
+                LoadScene.Request(seed=2, n_objects=1, arrangement="packed"), 120)
+    assert load.success, load.message
+    assert call(node.create_client(Trigger, "tsdf/reset"), Trigger.Request()).success
+    t_reset = node.get_clock().now().nanoseconds
+    assert wait_until(lambda: seen["tsdf"].header.stamp.sec * 10**9 + seen["tsdf"].header.stamp.nanosec
+                      > t_reset + 1e9 and not seen["states"].lifted[0], 30)
+    obj = seen["states"].poses[0].position
+    p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
+    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    arm = node.create_client(SetBool, "execute/arm")
+    assert call(arm, SetBool.Request(data=True)).success
+
+    # Overcurrent fault raised by the emulated gripper while the hand approaches.
+    results = {}
+    worker = threading.Thread(target=lambda: results.setdefault("r", call(client, request(p, q), 240)))
+    worker.start()
+    time.sleep(0.5)
+    assert call(node.create_client(Trigger, "inject_gripper_fault"), Trigger.Request()).success
+    worker.join(250)
+    fault = results["r"]
+    assert fault.result_code == R.GRIPPER_FAULT, fault.message
+    assert "0x0E" in fault.message or "overcurrent" in fault.message
+    # A fault disarms: the next request is refused until a person re-arms.
+    again = call(client, request(p, q), 60)
+    assert again.result_code == R.NOT_ARMED
+
+    # Emergency stop during a motion: halted, disarmed, NOT_ARMED.
+    assert call(arm, SetBool.Request(data=True)).success
+    estop = node.create_publisher(Bool, "emergency_stop", 10)
+    assert wait_until(lambda: estop.get_subscription_count() > 0, 15)
+    results.clear()
+    worker = threading.Thread(target=lambda: results.setdefault("r", call(client, request(p, q), 240)))
+    worker.start()
+    time.sleep(1.5)
+    estop.publish(Bool(data=True))
+    worker.join(250)
+    assert results["r"].result_code in (R.NOT_ARMED, R.GRIPPER_FAULT), results["r"].message
+    assert call(client, request(p, q), 60).result_code == R.NOT_ARMED

@@ -24,7 +24,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rcl_interfaces.msg import ParameterDescriptor
 from std_msgs.msg import Bool
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_msgs.msg import GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
@@ -46,9 +46,17 @@ def matrix_to_pose(X, pose):
 class ServiceArm:
     """grasp_execution.Arm over the MoveToPose service."""
 
-    def __init__(self, node: Node, service: str, frame_id: str):
+    def __init__(self, node: Node, service: str, stop_service: str, frame_id: str):
         self.node, self.frame_id = node, frame_id
         self.client = node.create_client(MoveToPose, service, callback_group=ReentrantCallbackGroup())
+        self.stop_client = node.create_client(Trigger, stop_service, callback_group=ReentrantCallbackGroup())
+
+    def stop(self) -> bool:
+        """Ask the arm to halt now (fire and forget: an e-stop must not wait)."""
+        if not self.stop_client.service_is_ready():
+            return False
+        self.stop_client.call_async(Trigger.Request())
+        return True
 
     def move_to(self, X_task_tcp, speed_mps, timeout_s):
         if not self.client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
@@ -78,6 +86,8 @@ class ExecuteNode(Node):
         slave_id = param("gripper_slave_id", 9, "Modbus slave id of the gripper")
         baud = param("gripper_baud", 115200, "serial baud rate")
         arm_service = param("arm_service", "move_to_pose", "MoveToPose service of the arm adapter or sim bridge")
+        arm_stop_service = param("arm_stop_service", "stop_motion",
+                                 "std_srvs/Trigger service that halts the arm at once (called on emergency stop)")
         base = param("arm_base_xyz_yaw", [0.15, -0.45, 0.0, 0.0],
                      "arm base pose in the task frame: x, y, z [m], yaw [rad] (UR5e kinematic model)")
         self.check_ik = param("check_ik", True, "check reachability with the arm's kinematic model")
@@ -108,7 +118,8 @@ class ExecuteNode(Node):
         def gripper():
             return Robotiq2F85(port, slave_id=slave_id, baudrate=baud)
 
-        self.executor_core = GraspExecutor(ServiceArm(self, arm_service, self.task_frame), gripper, limits,
+        self.arm = ServiceArm(self, arm_service, arm_stop_service, self.task_frame)
+        self.executor_core = GraspExecutor(self.arm, gripper, limits,
                                            reachability=reach, log=self.get_logger().info)
         if param("armed_at_start", False, "start armed (only for simulation)"):
             self.executor_core.arm_motion(True)
@@ -132,7 +143,9 @@ class ExecuteNode(Node):
     def _on_estop(self, msg):
         if msg.data:
             self.executor_core.estop()
-            self.get_logger().error("EMERGENCY STOP: executor disarmed, gripper stopped")
+            halted = self.arm.stop()
+            self.get_logger().error("EMERGENCY STOP: executor disarmed, gripper stopped, "
+                                    + ("arm halt requested" if halted else "arm stop service NOT available"))
 
     def _on_arm(self, request, response):
         if request.data and self.executor_core.estopped.is_set():
