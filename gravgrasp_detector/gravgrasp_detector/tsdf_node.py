@@ -206,6 +206,9 @@ class TSDFNode(Node):
         except InputError as e:
             self.problems.report(e.cause, str(e))
             return
+        except (ValueError, TypeError) as e:  # e.g. absurd width/step values
+            self.problems.report("malformed_image", f"depth image cannot be decoded ({e}): the publisher fills the message wrongly")
+            return
         self.problems.clear("encoding", "malformed_image")
         self.get_logger().debug(f"depth {_stamp_s(msg.header.stamp):.3f} received, {len(self.pending)} pending")
         self.pending.append((time.monotonic(), msg.header, depth))
@@ -242,6 +245,11 @@ class TSDFNode(Node):
                 if self.pending and self.pending[0][2] is depth:
                     self.pending.popleft()
                 self.problems.report(e.cause, str(e))
+                continue
+            except Exception as e:  # keep running: one unexpected frame must not stop the node
+                if self.pending and self.pending[0][2] is depth:
+                    self.pending.popleft()
+                self.problems.report(type(e).__name__, f"could not fuse a depth image: {type(e).__name__}: {e}")
                 continue
             self.problems.clear()  # a fused frame: every input is fine again
             self.dirty = True
