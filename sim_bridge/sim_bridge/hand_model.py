@@ -36,16 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# --- key dimensions (measured on the model; used by datagen collision checks and the executor)
-MAX_STROKE_M = 0.085  # distance between the pads when fully open
-FLANGE_TO_TCP_M = 0.1558  # flange -> pinch point along the approach axis
-FLANGE_TO_PALM_M = 0.1008  # flange -> top of the palm (base housing) on the hand axis
-PALM_TO_TCP_M = FLANGE_TO_TCP_M - FLANGE_TO_PALM_M  # 0.055: how deep an object can sit
-FINGER_LENGTH_M = 0.0594  # palm top -> fingertip (pad top) when open, along the approach
-PAD_LENGTH_M = 0.0375  # along the approach axis
-PAD_WIDTH_M = 0.022  # along x
-BODY_HALF_EXTENTS_M = (0.0375, 0.0424)  # housing half size along TCP x, y
-FINGER_HALF_WIDTH_X_M = 0.0195  # widest finger link (spring link) half width along x
+# --- key dimensions: one source for every package (robotiq_driver.hand_geometry), checked
+# against this model by tests/test_sim_hand.py.
+from robotiq_driver.hand_geometry import (  # noqa: E402,F401  (re-exported)
+    BODY_HALF_EXTENTS_M, FINGER_HALF_WIDTH_X_M, FINGER_LENGTH_M, FLANGE_TO_PALM_M, FLANGE_TO_TCP_M,
+    MAX_STROKE_M, PAD_LENGTH_M, PAD_WIDTH_M, PALM_TO_TCP_M)
 
 # Driver joint travel: 0 = open, 0.8 rad = closed (Menagerie).
 DRIVER_OPEN_RAD = 0.0
