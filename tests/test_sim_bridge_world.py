@@ -169,3 +169,17 @@ def test_procedural_scene_is_drawn_settled_and_reloadable():
     with pytest.raises(ValueError, match="arrangement"):
         world.reset(SceneConfig(arrangement="heap"))
     assert world.object_names() == names  # a bad request leaves the scene alone
+
+
+def test_mesh_directory_scene(tmp_path):
+    """Bare OBJ files (no mass in them) get object_mass_kg; URDFs would bring their own."""
+    import trimesh
+
+    trimesh.creation.box((0.05, 0.06, 0.08)).export(tmp_path / "block.obj")
+    trimesh.creation.cylinder(radius=0.03, height=0.1).export(tmp_path / "can.obj")
+    world = SimWorld(SceneConfig(seed=0, n_objects=2, mesh_dir=str(tmp_path), object_mass_kg=0.4), WorldSettings())
+    assert sorted(world.object_names()) == ["block", "can"]
+    for state in world.object_states():
+        assert state.mass_kg == pytest.approx(0.4) and abs(state.height_above_table_m) < 0.003
+    with pytest.raises(ValueError, match="no .urdf or .obj"):
+        world.reset(SceneConfig(mesh_dir=str(tmp_path / "nowhere")))

@@ -70,6 +70,8 @@ FINGER_LINKS = frozenset(hand_model.LEFT_LINKS + hand_model.RIGHT_LINKS
 STAND_IN_MASS_KG = 1000.0
 DRIVER_DAMPING_NMS_PER_RAD = 0.3  # the finger servo's damping (implicit in SAP)
 
+BARE_MESH_DENSITY_KG_M3 = 500.0  # mesh_dir of bare OBJs without object_mass_kg
+
 # Hand pointing down: TCP z (approach) = -task z, closing axis y = -task y.
 R_TOP_DOWN = np.diag([1.0, -1.0, -1.0])
 
@@ -409,7 +411,6 @@ class SimWorld:
                                             driver_torque_nm(self.settings.contact.grip_force_n))
             self.simulator.Initialize()
             self._advance_locked(self.settings.settle_time_s)
-            self._rest_poses = {n: X[:3, 3].copy() for n, X in self._object_poses().items()}
             return list(self.names)
 
     def _draw_scene(self, cfg: SceneConfig):
@@ -422,12 +423,18 @@ class SimWorld:
             if cfg.mesh_dir:
                 import pathlib
 
-                files = sorted(p for p in pathlib.Path(cfg.mesh_dir).iterdir()
-                               if p.suffix.lower() in (".urdf", ".obj")) if pathlib.Path(cfg.mesh_dir).is_dir() else []
+                d = pathlib.Path(cfg.mesh_dir)
+                entries = sorted(d.iterdir()) if d.is_dir() else []
+                # URDFs (VGN's: mass + meshes) when there are any; their OBJs are parts of them
+                files = [p for p in entries if p.suffix.lower() == ".urdf"] or [
+                    p for p in entries if p.suffix.lower() == ".obj"]
                 if not files:
                     raise ValueError(f"mesh_dir {cfg.mesh_dir!r}: no .urdf or .obj files there")
                 pick = np.random.default_rng(cfg.seed).choice(len(files), min(cfg.n_objects, len(files)), replace=False)
-                specs = [load_mesh_object(files[i]) for i in pick]
+                # bare OBJs carry no mass: object_mass_kg, else a household density
+                density = None if cfg.object_mass_kg > 0 or files[0].suffix.lower() == ".urdf" else BARE_MESH_DENSITY_KG_M3
+                specs = [load_mesh_object(files[i], mass_kg=cfg.object_mass_kg or None, density_kg_m3=density)
+                         for i in pick]
             else:
                 specs = random_procedural_objects(cfg.n_objects, cfg.seed)
         if cfg.object_mass_kg > 0:
