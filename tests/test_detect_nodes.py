@@ -113,3 +113,36 @@ def test_bag_replay_through_tsdf_and_detect(ros_node, ros_process, model_path):
     # Coloured by score: the best grasp is green, the weakest the reddest.
     assert outlines[0].color.g == pytest.approx(1.0) and outlines[-1].color.r >= outlines[0].color.r
     assert tsdf.alive() and detect.alive()
+
+
+def test_tsdf_with_static_extrinsic_parameter(ros_node, ros_process):
+    """camera_pose_source:=parameter: no pose topic needed; the table lands at z = 0.05 m."""
+    from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CameraInfo, Image
+
+    # Looking straight down from 0.65 m above the cube's centre: 180 deg about x.
+    tsdf = ros_process("gravgrasp_detector", "tsdf", params={
+        "camera_pose_source": "parameter", "camera_pose": [0.15, 0.15, 0.65, 1.0, 0.0, 0.0, 0.0],
+        "publish_rate_hz": 20.0})
+    width, height, f = 80, 60, 60.0
+    info = CameraInfo(width=width, height=height)
+    info.k = [f, 0.0, (width - 1) / 2, 0.0, f, (height - 1) / 2, 0.0, 0.0, 1.0]
+    depth = np.full((height, width), 600, np.uint16)  # 0.6 m in mm: table top at z = 0.05 m
+    image = Image(width=width, height=height, encoding="16UC1", step=2 * width, data=depth.tobytes())
+    volumes = collect(ros_node, TSDFVolumeMsg, "/tsdf", VOLUME_QOS)
+    info_pub = ros_node.create_publisher(CameraInfo, "/depth/camera_info", qos_profile_sensor_data)
+    image_pub = ros_node.create_publisher(Image, "/depth/image", qos_profile_sensor_data)
+    assert ros_testing.wait_for_subscriber(ros_node, "/depth/image", 20)
+
+    def publish_and_wait():
+        info_pub.publish(info)
+        image_pub.publish(image)
+        return ros_testing.spin_until(ros_node, lambda: bool(volumes), 0.5)
+
+    assert ros_testing.spin_until(ros_node, publish_and_wait, 20), tsdf.output()[-2000:]
+    grid = np.asarray(volumes[-1].tsdf, np.float32).reshape(40, 40, 40)
+    weights = np.asarray(volumes[-1].weights, np.float32).reshape(40, 40, 40)
+    seen = (weights[:, :, 6] > 0) & (weights[:, :, 7] > 0)
+    assert seen.sum() > 100
+    assert (grid[:, :, 6][seen] < 0.5).all() and (grid[:, :, 7][seen] >= 0.5).all()
