@@ -146,3 +146,40 @@ def test_tsdf_with_static_extrinsic_parameter(ros_node, ros_process):
     seen = (weights[:, :, 6] > 0) & (weights[:, :, 7] > 0)
     assert seen.sum() > 100
     assert (grid[:, :, 6][seen] < 0.5).all() and (grid[:, :, 7][seen] >= 0.5).all()
+
+
+def test_detect_parameters_change_at_run_time(ros_node, ros_process, model_path):
+    from gravgrasp_msgs.msg import GraspArray
+    from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    detect = ros_process("gravgrasp_detector", "detect", params={"model_path": str(model_path), "validness_threshold": THRESHOLD})
+    pub = ros_node.create_publisher(TSDFVolumeMsg, "/tsdf", VOLUME_QOS)
+    grasps = collect(ros_node, GraspArray, "/grasps")
+    assert ros_testing.wait_for_subscriber(ros_node, "/tsdf", 30)
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[:, :, 3:7], grid[:, :, 7:11] = 0.3, 0.7
+    msg = TSDFVolumeMsg(resolution=40, voxel_size_m=0.0075, truncation_m=0.03)
+    msg.header.frame_id = "task"
+    msg.origin.orientation.w = 1.0
+    msg.tsdf, msg.weights = grid.ravel(), (grid > 0).astype(np.float32).ravel()
+
+    def detect_once():
+        before = len(grasps)
+        pub.publish(msg)
+        assert ros_testing.spin_until(ros_node, lambda: len(grasps) > before, 20), detect.output()[-2000:]
+        return grasps[-1].grasps
+
+    assert len(detect_once()) == 20
+    client = ros_node.create_client(SetParameters, "/detect/set_parameters")
+    request = SetParameters.Request(parameters=[Parameter("max_grasps", value=3).to_parameter_msg()])
+    assert ros_testing.call_service(ros_node, client, request).results[0].successful
+    assert len(detect_once()) == 3
+    # Out of the declared range: refused, the node keeps its value.
+    request = SetParameters.Request(parameters=[Parameter("validness_threshold", value=1.5).to_parameter_msg()])
+    assert not ros_testing.call_service(ros_node, client, request).results[0].successful
+    best = max(g.gravity_rejection_score for g in detect_once())
+    request = SetParameters.Request(parameters=[Parameter("min_score_n", value=float(best) + 1.0).to_parameter_msg()])
+    assert ros_testing.call_service(ros_node, client, request).results[0].successful
+    assert detect_once() == []  # nothing holds that much: an empty, still published, answer
