@@ -193,3 +193,17 @@ def test_bad_input_raises_one_clear_error(change, cause, words):
     assert e.value.cause == cause
     assert words in str(e.value)
     assert vol.frames_integrated == 0 and not vol.weights().any()
+
+
+def test_grid_equals_vgn_voxel_grid_extraction():
+    """VGN reads its network input voxel by voxel from Open3D's extract_voxel_grid();
+    grid() must give exactly those numbers (and 0 where VGN leaves voxels out)."""
+    vol = TSDFVolume()
+    T = top_down_pose(x=0.215, y=0.14)
+    vol.integrate(analytic_depth(T), K, T)
+    vgn = np.zeros((40, 40, 40), np.float32)
+    for voxel in vol._volume.extract_voxel_grid().get_voxels():
+        i, j, k = voxel.grid_index
+        vgn[i, j, k] = voxel.color[0]
+    assert (vgn > 0).sum() > 1000
+    np.testing.assert_allclose(vol.grid(), vgn, atol=1e-6)
