@@ -5,7 +5,7 @@ SHELL := /bin/bash
 ROS := set +u; source ros_ws/env.sh; set -u;
 PYTEST_ARGS ?=
 
-.PHONY: help setup build test demo lock bench-detect bench-sim bench-gripper data-report
+.PHONY: help setup build test demo lock bench-detect bench-sim bench-gripper data-report data-objects data-scenes
 
 help:
 	@echo "make demo   - set up everything and run the main job"
@@ -17,6 +17,8 @@ help:
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make data-report   - summary of the committed per-object grasp tables"
+	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=32 WORKERS=2)"
+	@echo "make data-scenes   - training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 
 setup:
 	@ros_ws/setup.sh
@@ -54,3 +56,16 @@ bench-gripper: setup
 
 data-report: setup
 	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v1
+
+# The dataset of the shipped model: VGN's training meshes + 200 procedural objects, grasps
+# simulated at the label settings (dt 1 ms). Both stages resume when rerun.
+GRASPS ?= 32
+SCENES ?= 5000
+WORKERS ?= 2
+data-objects: setup
+	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --procedural 200 \
+	  --grasps-per-object $(GRASPS) --sim-setting time_step_s=0.001 --seed 0 --out models/grasp_tables_v1 --workers $(WORKERS)
+
+data-scenes: setup
+	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v1 --meshes ../shared/meshes/vgn_train \
+	  --scenes $(SCENES) --seed 0 --out out/scenes_v1 --workers $(WORKERS)

@@ -334,7 +334,7 @@ def train(config: TrainConfig, progress=True):
             optimizer.step()
             for k in sums:
                 sums[k] += float(terms[k].detach()) / len(batches)
-            bar.set_postfix(loss=f"{float(terms['total']):.3f}")
+            bar.set_postfix(loss=f"{float(terms['total'].detach()):.3f}")
         metrics = evaluate(model, val_scenes, config, device)
         record = {"epoch": epoch + 1, "wall_s": round(time.monotonic() - t0, 1),
                   **{f"train_{k}": v for k, v in sums.items()}, **{f"val_{k}": v for k, v in metrics.items()}}

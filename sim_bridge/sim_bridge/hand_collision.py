@@ -1,17 +1,7 @@
 """Fast collision model of the *open* Robotiq 2F-85 for filtering grasp poses.
 
-The hand is a union of axis-aligned boxes in the TCP frame (origin between the
-finger pads at the pinch point, z = approach palm -> object, y = closing axis,
-x = y x z), sized from the constants of `hand_model` (measured on the Menagerie
-2F-85 at zero joint angles = fully open).  Metres throughout.
-
-     y = closing axis ->          z = approach (down the page)
-          |  |                |  |      distal links + pads: inner face at
-          |  |      TCP       |  |      y = +-stroke/2, up to the finger tips
-        /  /         +         \  \     proximal links (open: tilted outwards)
-      '--------------------------'      palm face, z = -PALM_TO_TCP_M
-      |          housing           |    flange at z = -FLANGE_TO_TCP_M
-          |     wrist / arm stub   |
+The hand is the union of boxes in the TCP frame of `robotiq_driver.hand_geometry`
+(sketch and dimensions there; the executor checks the same boxes against the TSDF).
 
 A pose collides when a point of another body (sampled on its surface, spacing a
 few mm) is inside a box, or a box corner is below the table plane.  The approach
@@ -23,39 +13,9 @@ This is a conservative filter; the grasp simulation itself uses the full hand.
 import numpy as np
 import trimesh
 
-from .hand_model import (BODY_HALF_EXTENTS_M, FINGER_HALF_WIDTH_X_M, FINGER_LENGTH_M,
-                         FLANGE_TO_TCP_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_TO_TCP_M)
-
-PALM_FACE_Z_M = -PALM_TO_TCP_M                  # deepest possible insertion
-FINGER_TIP_Z_M = FINGER_LENGTH_M - PALM_TO_TCP_M  # finger tips beyond the pinch point
-WRIST_STUB_M = 0.08       # arm flange / wrist behind the hand, coarse
-FINGER_THICKNESS_M = 0.02  # distal link + pad, across the closing axis
-PROXIMAL_OUTER_Y_M = 0.078  # open proximal links reach this far out (Menagerie, open)
-PROXIMAL_TOP_Z_M = -0.033   # ... and end where the distal link starts
-
-
-def _box(lo, hi):
-    return [list(lo), list(hi)]
-
-
-def _mirror_y(box):
-    (x0, y0, z0), (x1, y1, z1) = box
-    return [[x0, -y1, z0], [x1, -y0, z1]]
-
-
-_h = MAX_STROKE_M / 2
-_bx, _by = BODY_HALF_EXTENTS_M
-_distal = _box((-PAD_WIDTH_M / 2, _h, PROXIMAL_TOP_Z_M - 0.002),
-               (PAD_WIDTH_M / 2, _h + FINGER_THICKNESS_M, FINGER_TIP_Z_M))
-_proximal = _box((-FINGER_HALF_WIDTH_X_M, _h + 0.002, PALM_FACE_Z_M),
-                 (FINGER_HALF_WIDTH_X_M, PROXIMAL_OUTER_Y_M, PROXIMAL_TOP_Z_M))
-# (lo, hi) corners in the TCP frame [m]
-OPEN_HAND_BOXES_TCP = np.array([
-    _box((-_bx, -_by, -FLANGE_TO_TCP_M), (_bx, _by, PALM_FACE_Z_M)),         # housing
-    _box((-0.045, -0.045, -FLANGE_TO_TCP_M - WRIST_STUB_M), (0.045, 0.045, -FLANGE_TO_TCP_M)),
-    _proximal, _mirror_y(_proximal),
-    _distal, _mirror_y(_distal),
-])
+# The open-hand boxes are shared with the executor's TSDF check (one source).
+from robotiq_driver.hand_geometry import (  # noqa: F401  (re-exported)
+    FINGER_TIP_Z_M, OPEN_HAND_BOXES_TCP, PALM_FACE_Z_M, swept_boxes as _swept_boxes)
 
 POINT_SPACING_M = 0.003     # surface sampling: well below the thinnest box (20 mm)
 
@@ -65,12 +25,6 @@ def surface_points(mesh, spacing_m=POINT_SPACING_M, seed=0):
     count = int(np.clip(mesh.area / spacing_m**2, 100, 200_000))
     pts, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
     return np.vstack([pts, mesh.vertices]).astype(np.float64)
-
-
-def _swept_boxes(approach_m):
-    boxes = OPEN_HAND_BOXES_TCP.copy()
-    boxes[:, 0, 2] -= approach_m
-    return boxes
 
 
 def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
