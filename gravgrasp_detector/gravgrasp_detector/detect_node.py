@@ -112,8 +112,11 @@ class DetectNode(Node):
             "node, OpenMP threads waiting on a busy core made detection up to 10x slower", 1, 64,
             read_only=True)).value
         torch.set_num_threads(threads)
-        precision = p("precision", "auto", ParameterDescriptor(
-            description="Network arithmetic: 'bf16' (autocast, needs AVX-512 BF16/AMX to be fast), 'fp32', "
+        # fp32 by default: bf16 is ~2x faster here, but it may only be the default once
+        # its top-10 ranking agrees with fp32 on a trained model (bench_detect measures it).
+        precision = p("precision", "fp32", ParameterDescriptor(
+            description="Network arithmetic: 'fp32', 'bf16' (autocast, needs AVX-512 BF16/AMX to be fast; "
+                        "check bench_detect's bf16-vs-fp32 top-10 agreement for your model first), "
                         "or 'auto' (bf16 where the CPU has it)", read_only=True)).value
 
         self.model_path = resolve_model_path(model_path)
