@@ -25,6 +25,9 @@ import time
 import numpy as np
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_msgs.msg import GraspArray, ObjectStates
@@ -93,6 +96,12 @@ class Client:
         self.grasps, self.states = None, None
         self.node.create_subscription(GraspArray, "grasps", self._on_grasps, 10)
         self.node.create_subscription(ObjectStates, "object_states", lambda m: setattr(self, "states", m), 10)
+        self.depth, self.info, self.camera_pose = None, None, None
+        self.node.create_subscription(Image, "depth/image", lambda m: setattr(self, "depth", m), qos_profile_sensor_data)
+        self.node.create_subscription(CameraInfo, "depth/camera_info", lambda m: setattr(self, "info", m),
+                                      qos_profile_sensor_data)
+        self.node.create_subscription(PoseStamped, "camera_pose", lambda m: setattr(self, "camera_pose", m),
+                                      qos_profile_sensor_data)
         self.executor = MultiThreadedExecutor(num_threads=3)
         self.executor.add_node(self.node)
         threading.Thread(target=self.executor.spin, daemon=True).start()
@@ -128,6 +137,42 @@ class Client:
         return None
 
 
+def save_scene_png(client, grasps, path):
+    """The camera's depth image with the detected TCP positions projected, coloured by
+    gravity-rejection score; the executed (top) grasp circled."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.spatial.transform import Rotation
+
+    depth_msg, info, pose = client.depth, client.info, client.camera_pose
+    if depth_msg is None or info is None or pose is None:
+        return False
+    dtype = np.uint16 if depth_msg.encoding == "16UC1" else np.float32
+    depth = np.frombuffer(bytes(depth_msg.data), dtype).reshape(depth_msg.height, depth_msg.width).astype(float)
+    if dtype is np.uint16:
+        depth = depth / 1000.0
+    q, t = pose.pose.orientation, pose.pose.position
+    R = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    p_task = np.array([[g.pose.position.x, g.pose.position.y, g.pose.position.z] for g in grasps.grasps])
+    scores = np.array([g.gravity_rejection_score for g in grasps.grasps])
+    p_cam = (p_task - [t.x, t.y, t.z]) @ R  # task -> camera optical frame
+    k = info.k
+    u = k[0] * p_cam[:, 0] / p_cam[:, 2] + k[2]
+    v = k[4] * p_cam[:, 1] / p_cam[:, 2] + k[5]
+    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100)
+    ax.imshow(np.where(depth > 0, depth, np.nan), cmap="gray")
+    sc = ax.scatter(u, v, c=scores, cmap="viridis", s=18)
+    ax.scatter(u[:1], v[:1], s=160, facecolors="none", edgecolors="red", linewidths=2)
+    fig.colorbar(sc, ax=ax, label="gravity-rejection score [N]")
+    ax.set_axis_off()
+    ax.set_title(f"{len(scores)} grasps; executed: {scores[0]:.1f} N" if len(scores) else "no grasps")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
 def run(args) -> dict:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -144,6 +189,7 @@ def run(args) -> dict:
         procs.start("stack", [installed("gravgrasp_detector", "stack"), "--ros-args",
                               "-p", f"detect:model_path:={args.model}", "-p", f"execute:gripper_port:={link}",
                               "-p", f"detect:min_score_n:={args.min_score_n}",
+                              "-p", f"detect:validness_threshold:={args.validness_threshold}",
                               # the sim runs slower than real time while it holds an object
                               "-p", "execute:arm_timeout_s:=120.0"])
         procs.wait_for("stack", "execute ready", 120)
@@ -167,6 +213,7 @@ def run(args) -> dict:
                 report["end"] = "no grasp detected"
                 break
             top = grasps.grasps[0]
+            save_scene_png(client, grasps, out / f"attempt_{len(report['attempts']) + 1:02d}.png")
             request = ExecuteGrasp.Request(use_index=False, grasp=top)
             request.header = grasps.header
             t0 = time.monotonic()
@@ -204,7 +251,8 @@ def main(argv=None):
     p.add_argument("--arrangement", choices=["packed", "pile"], default="packed")
     p.add_argument("--mass-kg", type=float, default=0.0, help="every object's mass; 0 = their own")
     p.add_argument("--model", default="models/gravgrasp.pt")
-    p.add_argument("--min-score-n", type=float, default=0.0)
+    p.add_argument("--min-score-n", type=float, default=0.0, help="ignore grasps scored below this [N]")
+    p.add_argument("--validness-threshold", type=float, default=0.5)
     p.add_argument("--out", default="out/demo")
     args = p.parse_args(argv)
     if not pathlib.Path(args.model).is_file() and not (pathlib.Path(os.environ.get("GRAVGRASP_ROOT", ".")) / args.model).is_file():
