@@ -30,6 +30,10 @@ DIRECTIONS_TCP = np.array(
 )
 
 
+# Shortest momentum window, used only for a ramp that ends before its first full window.
+MIN_WINDOW_S = 0.002
+
+
 class ForceRampDisturbance(LeafSystem):
     """A force on one body, applied at a point fixed in it, ramping from zero.
 
@@ -86,7 +90,12 @@ def measure_departure_force(simulator, plant, object_instance, ramp, direction_W
 
     # Ring buffer of (t, v·d) samples for the momentum window.
     hist_t, hist_v = [t0], [float(plant.CalcCenterOfMassTranslationalVelocityInWorld(pc, [object_instance]) @ d)]
-    state = {"peak": 0.0, "departed": False}
+    # "peak": over full windows; "early": over the windows available before the first
+    # full one (>= MIN_WINDOW_S from the ramp start), used only if the object left the
+    # hand before any full window. A light object (1-7 g VGN objects) that slips at a
+    # few newtons leaves within ~10 ms (measured: a 3 g power grasp held 6.5-8 N along
+    # +-x and left 16-18 ms into the ramp), so with only full windows it read 0 N.
+    state = {"peak": 0.0, "early": 0.0, "full": False, "departed": False}
 
     def monitor(ctx):
         t = ctx.get_time()
@@ -99,15 +108,26 @@ def measure_departure_force(simulator, plant, object_instance, ramp, direction_W
         k = len(hist_t) - 1
         while k > 0 and t - hist_t[k] < window_s:
             k -= 1
-        if t - hist_t[k] >= window_s * 0.999:
+        full = t - hist_t[k] >= window_s * 0.999
+        if not full and not state["full"]:
+            # before the first full window: the shortest window of at least MIN_WINDOW_S
+            short = min(MIN_WINDOW_S, window_s) * 0.999
+            k = len(hist_t) - 1
+            while k > 0 and t - hist_t[k] < short:
+                k -= 1
+        if full or (not state["full"] and t - hist_t[k] >= min(MIN_WINDOW_S, window_s) * 0.999):
             ta = hist_t[k]
             # The ramp applied in [ta, t] is rate*(time since t0), evaluated at step starts;
             # its mean over the window is the value at the window midpoint minus half a step.
             h = (t - ta) / (len(hist_t) - 1 - k)
             f_mean = rate_n_per_s * max(0.0, 0.5 * (ta + t) - h / 2 - t0)
             resist = f_mean - mass * (v - hist_v[k]) / (t - ta)
-            state["peak"] = max(state["peak"], resist)
-            if k > 64:  # keep the buffers short
+            if full:
+                state["full"] = True
+                state["peak"] = max(state["peak"], resist)
+            else:
+                state["early"] = max(state["early"], resist)
+            if full and k > 64:  # keep the buffers short
                 del hist_t[: k - 1], hist_v[: k - 1]
         p = plant.CalcCenterOfMassPositionInWorld(pc, [object_instance])
         if np.linalg.norm(p - p0) > departure_travel_m:
@@ -122,5 +142,6 @@ def measure_departure_force(simulator, plant, object_instance, ramp, direction_W
     finally:
         simulator.clear_monitor()
     # held to the cap: the score is the cap (the windowed peak lags the ramp by W/2)
-    score = min(state["peak"], max_force_n) if state["departed"] else max_force_n
+    peak = state["peak"] if state["full"] else state["early"]
+    score = min(peak, max_force_n) if state["departed"] else max_force_n
     return score, state["departed"], root.get_time() - t0

@@ -188,7 +188,12 @@ class GraspSimulator:
         self._default = self.diagram.CreateDefaultContext()
         pc = plant.GetMyContextFromRoot(self._default)
         self.X_W_tcp = plant.CalcRelativeTransform(pc, plant.world_frame(), self.hand.tcp_frame)
-        self._object_geoms = set(plant.GetCollisionGeometriesForBody(self.object_body))
+        # Geometry ids by value, read after Finalize (hand_model.Hand.geometry_links can
+        # hold stale ids; see Hand.collision_geometry_links).
+        self._object_geoms = {int(g.get_value()) for g in plant.GetCollisionGeometriesForBody(self.object_body)}
+        self.hand_link_of = self.hand.collision_geometry_links(plant)
+        self.hand.geometry_links = {g: plant.get_body(b).name() for b in plant.GetBodyIndices(self.hand.model_instance)
+                                    for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))}
 
     # --- helpers -------------------------------------------------------------------
     def _contacts(self, root):
@@ -204,9 +209,10 @@ class GraspSimulator:
         obj_idx = self.object_body.index()
         for i in range(results.num_hydroelastic_contacts()):
             s = results.hydroelastic_contact_info(i).contact_surface()
-            for a, b in ((s.id_M(), s.id_N()), (s.id_N(), s.id_M())):
-                if a in self._object_geoms and b in self.hand.geometry_links:
-                    links.add(self.hand.geometry_links[b])
+            m_, n_ = int(s.id_M().get_value()), int(s.id_N().get_value())
+            for a, b in ((m_, n_), (n_, m_)):
+                if a in self._object_geoms and b in self.hand_link_of:
+                    links.add(self.hand_link_of[b])
                     n += 1
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
@@ -220,7 +226,7 @@ class GraspSimulator:
         sg_ctx = self.scene_graph.GetMyContextFromRoot(root)
         q = self.scene_graph.get_query_output_port().Eval(sg_ctx)
         for p in q.ComputePointPairPenetration():
-            if (p.id_A in self._object_geoms) != (p.id_B in self._object_geoms):
+            if (int(p.id_A.get_value()) in self._object_geoms) != (int(p.id_B.get_value()) in self._object_geoms):
                 return True
         return False
 
@@ -234,7 +240,7 @@ class GraspSimulator:
             info = results.hydroelastic_contact_info(i)
             s = info.contact_surface()
             for gid in (s.id_M(), s.id_N()):
-                if self.hand.geometry_links.get(gid, "").startswith("right_"):
+                if self.hand_link_of.get(int(gid.get_value()), "").startswith("right_"):
                     total += abs(float(info.F_Ac_W().translational() @ y_W))
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
@@ -273,18 +279,27 @@ class GraspSimulator:
         self.simulator.Initialize()
         nq = self.plant.num_positions()
         iq = self.hand.driver_joints[0].position_start()
-        iv = nq + self.hand.driver_joints[0].velocity_start()
         calm, t = 0, 0.0
         chunk = max(0.02, 5 * s.time_step_s)
+        X_prev, q_prev = X_W_O, self.plant.GetPositions(pc)[iq]
         while t < s.max_close_time_s:
             t += chunk
             self.simulator.AdvanceTo(t)
             x = self.plant.GetPositionsAndVelocities(pc)
-            v_obj = self.plant.EvalBodySpatialVelocityInWorld(pc, self.object_body)
+            # Settled = the object and the fingers do not *move*: mean speeds over the
+            # chunk from the displacement, not the instantaneous velocities. Wedged
+            # between the palm and the pads, SAP's velocities chatter step to step
+            # (measured: object 41 mm/s and driver 2.9 rad/s in the state while the
+            # object moved < 0.1 mm and the driver 0.008 rad in 2.8 s), which made
+            # such grasps "did not settle".
+            X_now = self.plant.EvalBodyPoseInWorld(pc, self.object_body)
+            dX = X_prev.inverse() @ X_now
+            v_lin = np.linalg.norm(X_now.translation() - X_prev.translation()) / chunk
+            v_rot = abs(dX.rotation().ToAngleAxis().angle()) / chunk
             # finger speed at the pads ~ driver rate x 0.1 m lever
-            v_fing = abs(x[iv]) * 0.1
-            speed = max(np.linalg.norm(v_obj.translational()),
-                        np.linalg.norm(v_obj.rotational()) * 0.03, v_fing)
+            v_fing = abs(x[iq] - q_prev) / chunk * 0.1
+            X_prev, q_prev = X_now, x[iq]
+            speed = max(v_lin, v_rot * 0.03, v_fing)
             calm = calm + 1 if speed < s.settle_speed_m_s else 0
             if calm >= 3 and t > 0.1:
                 return root, ""

@@ -151,11 +151,27 @@ class Hand:
     driver_joints: tuple  # (left, right)
     actuators: tuple
     tcp_frame: object
-    geometry_links: dict  # GeometryId -> link name
+    # GeometryId -> link name, as registered. Do not trust it once more geometry was
+    # registered: pydrake's GeometryIds from GetCollisionGeometriesForBody point into
+    # the plant's per-body vector, which grows (and moves) when geometry is added later
+    # (with pad_contact_points the pad boxes' ids read as garbage, measured). Use
+    # `collision_geometry_links(plant)` after Finalize instead.
+    geometry_links: dict
     flange_frame: object = None
 
     def driver_angle_rad(self, plant, plant_context) -> float:
         return float(self.driver_joints[0].get_angle(plant_context))
+
+    def collision_geometry_links(self, plant) -> dict:
+        """{GeometryId *value* (int): link name} of every hand collision geometry, read
+        from the plant now (call after Finalize, when no geometry is added any more).
+        Keyed by value so the map cannot go stale."""
+        out = {}
+        for body_index in plant.GetBodyIndices(self.model_instance):
+            body = plant.get_body(body_index)
+            for gid in plant.GetCollisionGeometriesForBody(body):
+                out[int(gid.get_value())] = body.name()
+        return out
 
 
 def X_flange_tcp() -> np.ndarray:
