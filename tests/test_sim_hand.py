@@ -59,3 +59,24 @@ def test_underactuation_is_restored():
     spring = plant.GetJointByName("left_spring_link_joint")
     assert spring.position_lower_limits()[0] == pytest.approx(-0.2967, abs=1e-3)
     assert hand.driver_joints[0].position_upper_limits()[0] == pytest.approx(hand_model.DRIVER_CLOSED_RAD)
+
+
+@pytest.mark.parametrize("pad_contact_points", [False, True])
+def test_hand_geometry_links_are_valid_after_finalize(pad_contact_points):
+    """add_hand's GeometryId -> link map must still name every hand collision geometry
+    after more geometry (the pad sphere grid, an object) was registered and the plant
+    finalized (the pad boxes' ids used to read as garbage with the sphere grid)."""
+    from pydrake.geometry import Box
+    from pydrake.multibody.plant import CoulombFriction
+    from pydrake.multibody.tree import SpatialInertia
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=1e-3)
+    props = ProximityProperties()
+    hand = hand_model.add_hand(plant, scene_graph, props, pad_contact_points=pad_contact_points)
+    body = plant.AddRigidBody("obj", plant.AddModelInstance("obj"), SpatialInertia.SolidBoxWithMass(0.1, 0.03, 0.03, 0.03))
+    plant.RegisterCollisionGeometry(body, RigidTransform(), Box(0.03, 0.03, 0.03), "obj", CoulombFriction(0.5, 0.5))
+    plant.Finalize()
+    stored = {int(g.get_value()): name for g, name in hand.geometry_links.items()}
+    assert stored == hand.collision_geometry_links(plant)
+    assert sum(n.endswith("_pad") for n in stored.values()) >= (18 if pad_contact_points else 2)

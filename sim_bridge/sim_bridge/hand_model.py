@@ -151,11 +151,11 @@ class Hand:
     driver_joints: tuple  # (left, right)
     actuators: tuple
     tcp_frame: object
-    # GeometryId -> link name, as registered. Do not trust it once more geometry was
-    # registered: pydrake's GeometryIds from GetCollisionGeometriesForBody point into
-    # the plant's per-body vector, which grows (and moves) when geometry is added later
-    # (with pad_contact_points the pad boxes' ids read as garbage, measured). Use
-    # `collision_geometry_links(plant)` after Finalize instead.
+    # GeometryId -> link name, read by add_hand after its last registration. pydrake's
+    # GeometryIds from GetCollisionGeometriesForBody point into the plant's per-body
+    # vector, which moves when geometry is added to that body later (add_hand used to
+    # read them before registering the pad sphere grid: the pad boxes' ids then read as
+    # garbage). Safer: `collision_geometry_links(plant)` after Finalize, keyed by value.
     geometry_links: dict
     flange_frame: object = None
 
@@ -239,14 +239,6 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
         FixedOffsetFrame("tcp", base.body_frame(), RigidTransform([0.0, 0.0, 0.145]), mi)
     )
 
-    links = {}
-    for body_index in plant.GetBodyIndices(mi):
-        body = plant.get_body(body_index)
-        for gid in plant.GetCollisionGeometriesForBody(body):
-            links[gid] = body.name()
-            scene_graph.AssignRole(
-                plant.get_source_id(), gid, proximity_properties, RoleAssign.kReplace
-            )
     if pad_contact_points:
         from pydrake.geometry import Sphere
 
@@ -256,8 +248,16 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
             for i, x in enumerate((-0.009, 0.009)):
                 for j, z in enumerate((0.003, 0.013, 0.0245, 0.0345)):
                     # pad frame: inner face at y = -6.6 mm, pad spans z 0..37.5 mm
-                    gid = plant.RegisterCollisionGeometry(
+                    plant.RegisterCollisionGeometry(
                         pad, RigidTransform([x, -0.0066 + r, z]), Sphere(r),
                         f"{side}_pad_point_{i}{j}", proximity_properties)
-                    links[gid] = pad.name()
+    # Read the ids after the last geometry is registered on a hand body (see Hand).
+    links = {}
+    for body_index in plant.GetBodyIndices(mi):
+        body = plant.get_body(body_index)
+        for gid in plant.GetCollisionGeometriesForBody(body):
+            links[gid] = body.name()
+            scene_graph.AssignRole(
+                plant.get_source_id(), gid, proximity_properties, RoleAssign.kReplace
+            )
     return Hand(mi, (left, right), acts, tcp, links, flange)
