@@ -17,7 +17,7 @@ help:
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make data-report   - summary of the committed per-object grasp tables"
-	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=32 WORKERS=2)"
+	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
 	@echo "make data-scenes   - training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 
 setup:
@@ -59,7 +59,7 @@ data-report: setup
 
 # The dataset of the shipped model: VGN's training meshes + 200 procedural objects, grasps
 # simulated at the label settings (dt 1 ms). Both stages resume when rerun.
-GRASPS ?= 32
+GRASPS ?= 128
 SCENES ?= 5000
 WORKERS ?= 2
 data-objects: setup
