@@ -103,7 +103,7 @@ def detect_grasps(
     max_grasps=20,
     surface_distance_voxels=6,
     nms_radius_voxels=2,
-    precision="auto",
+    precision="fp32",
 ):
     """Ranked grasps (list of Grasp, highest score first) in the TSDF's frame.
 
