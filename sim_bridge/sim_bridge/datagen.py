@@ -15,6 +15,7 @@ shared path).
 """
 
 import argparse
+import itertools
 import json
 import sys
 from concurrent.futures.process import BrokenProcessPool
@@ -124,11 +125,12 @@ def sim_settings(overrides=()):
 
 
 def _object_sources(args):
-    sources = []
-    for d in args.meshes or []:
-        sources += mesh_sources(d, args.density)
+    groups = [mesh_sources(d, args.density) for d in args.meshes or []]
     if args.procedural:
-        sources += procedural_sources(args.procedural, args.procedural_seed)
+        groups.append(procedural_sources(args.procedural, args.procedural_seed))
+    # Round-robin over the sets, so that a run stopped early (or --limit) already has
+    # every kind of object; the order does not change any object's table.
+    sources = [s for row in itertools.zip_longest(*groups) for s in row if s is not None]
     if args.limit:
         sources = sources[:args.limit]
     return sources
