@@ -31,6 +31,7 @@ import json
 import math
 import os
 import pathlib
+import platform
 import sys
 import time
 
@@ -316,7 +317,7 @@ def train(config: TrainConfig, progress=True):
         print(f"resuming {out} at epoch {start_epoch}", flush=True)
 
     model.train()
-    t0 = time.monotonic()
+    t0 = time.monotonic() - (history[-1]["wall_s"] if history else 0.0)  # wall time survives a resume
     for epoch in range(start_epoch, config.epochs):
         rng = np.random.default_rng([config.seed, epoch])  # same batches whatever resumed
         order = rng.permutation(len(train_scenes))
@@ -350,6 +351,9 @@ def train(config: TrainConfig, progress=True):
         "nominal_mass_kg": config.nominal_mass_kg, "epochs": config.epochs, "seed": config.seed,
         "validation": history[-1] if history else {},
         "command": "ros2 run gravgrasp_detector train " + " ".join(sys.argv[1:]),
+        "train_wall_s": history[-1]["wall_s"] if history else 0.0,
+        "machine": {"cpu": _cpu_model(), "cores": os.cpu_count(), "torch_threads": config.threads,
+                    "device": device.type, "bf16": config.bf16},
     }
     # Model files load with weights_only=True: plain JSON types only, no numpy scalars.
     summary = json.loads(json.dumps(summary, default=float))
@@ -359,6 +363,16 @@ def train(config: TrainConfig, progress=True):
     (out / "history.json").write_text(json.dumps(history, indent=1))
     plot_history(history, out / "training_curve.png")
     return history[-1] if history else {}
+
+
+def _cpu_model() -> str:
+    try:
+        for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
 
 
 def plot_history(history, path):
