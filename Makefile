@@ -19,6 +19,7 @@ help:
 	@echo "make data-report   - summary of the committed per-object grasp tables"
 	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
 	@echo "make data-scenes   - training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
+	@echo "make qualitative   - paper V-A scene through MODEL (models/gravgrasp.pt): TSDF/score/validness slice PNGs"
 
 setup:
 	@ros_ws/setup.sh
@@ -69,3 +70,11 @@ data-objects: setup
 data-scenes: setup
 	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v1 --meshes ../shared/meshes/vgn_train \
 	  --scenes $(SCENES) --seed 0 --out out/scenes_v1 --workers $(WORKERS)
+
+# Paper Sec. V-A: cylinder + box, one camera; PNGs of the input TSDF and the score/validness
+# cross-sections in out/qualitative/<model stem>/. Look at them; write what you saw in the model card.
+MODEL ?= models/gravgrasp.pt
+.PHONY: qualitative
+qualitative: setup
+	@$(ROS) if [ ! -f "$(MODEL)" ]; then echo "make qualitative: $(MODEL) does not exist (no trained model yet; train one or pass MODEL=path.pt)" >&2; exit 2; fi; \
+	  ros2 run sim_bridge qualitative --model "$(MODEL)" --out "out/qualitative/$(basename $(notdir $(MODEL)))"
