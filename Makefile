@@ -18,6 +18,7 @@ help:
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make data-report   - summary of the committed per-object grasp tables"
 	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
+	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 	@echo "make qualitative   - paper V-A scene through MODEL (models/gravgrasp.pt): TSDF/score/validness slice PNGs"
 
@@ -70,6 +71,20 @@ data-objects: setup
 data-scenes: setup
 	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v1 --meshes ../shared/meshes/vgn_train \
 	  --scenes $(SCENES) --seed 0 --out out/scenes_v1 --workers $(WORKERS)
+
+# The shipped model and the benchmark's comparison models, all trained on out/scenes_v1
+# (make data-scenes). Each run resumes from out/training/<variant>/checkpoint.pt.
+EPOCHS ?= 20
+MODEL_VARIANTS := ours: precision_only:--data-subset=precision-only binary:--target=binary \
+  ey_ez:--rotation=ey-ez quat:--rotation=quat
+.PHONY: models
+models: setup
+	@$(ROS) set -e; for spec in $(MODEL_VARIANTS); do \
+	  v=$${spec%%:*}; dest=models/gravgrasp$$([ $$v = ours ] || echo _$$v).pt; \
+	  ros2 run gravgrasp_detector train --data out/scenes_v1 --out out/training/$$v --epochs $(EPOCHS) \
+	    --bf16 --no-progress $${spec#*:}; \
+	  cp out/training/$$v/model.pt $$dest.tmp && mv $$dest.tmp $$dest && echo "wrote $$dest"; \
+	done
 
 # Paper Sec. V-A: cylinder + box, one camera; PNGs of the input TSDF and the score/validness
 # cross-sections in out/qualitative/<model stem>/. Look at them; write what you saw in the model card.
