@@ -1,0 +1,286 @@
+"""Model cards: `ros2 run gravgrasp_detector model_card RUN_DIR --model models/gravgrasp.pt`.
+
+Writes `<model dir>/<model stem>.md` (e.g. models/gravgrasp.md) from a training output
+directory (RUN_DIR: model.pt, history.json, training_curve.png as `train` writes them):
+- Model: file, sha256, metadata (architecture, rotation representation, target, TSDF).
+- Data: scenes and labels the run used (from the model's metadata), and the dataset
+  summary of sim_bridge's `data_report` over the grasp tables and the scene files.
+  The tables are --tables, or the `objects_dir` that `datagen scenes` recorded in
+  scenes/manifest.json. data_report runs as a separate process: sim_bridge depends on
+  this package, so this package does not import sim_bridge.
+- Training: the command line, training time and machine as `train` recorded them.
+- Validation metrics: final and best epoch of history.json.
+- Qualitative check: the PNGs of `make qualitative` (out/qualitative/<model stem>/)
+  and a paragraph for what a person saw in them. That paragraph (between the
+  human-notes markers) is kept when the card is regenerated.
+"""
+
+import argparse
+import datetime
+import hashlib
+import json
+import math
+import os
+import pathlib
+import re
+import subprocess
+import sys
+import tempfile
+
+from . import model_file
+
+HUMAN_START, HUMAN_END = "<!-- human-notes: start -->", "<!-- human-notes: end -->"
+HUMAN_PLACEHOLDER = (
+    "_Not written yet._ Look at the PNGs above and write here what you saw, as the issue asks: "
+    "is the score higher where power grasps fit (around the cylinder and the box at z = 0.08 m) "
+    "than for fingertip grasps near the top edges? Does validness reject grasps that would "
+    "collide (palm into the other object, into the table) or need more than the 85 mm stroke "
+    "(across the box's 100 mm side; the paper's x = 0, y = ±0.05 m at z = 0.08 m)? Are the "
+    "approach arrows plausible on the occluded side (y = 0 slice, behind the cylinder)?"
+)
+# (history.json key, label, better) of the validation metrics on the card
+METRICS = (
+    ("val_validness_precision", "validness precision (at 0.5)", max),
+    ("val_validness_recall", "validness recall (at 0.5)", max),
+    ("val_validness_auroc", "validness AUROC", max),
+    ("val_score_mae_n", "score MAE [N] (valid voxels)", min),
+    ("val_rotation_error_deg", "rotation error [deg] (valid voxels, 180° twin)", min),
+    ("val_loss_total", "validation loss (total)", min),
+)
+SLICE_PNGS = ("slice_z150mm.png", "slice_z080mm.png", "slice_y000mm.png", "depth.png")
+
+
+class CardError(RuntimeError):
+    """Input the card cannot be written from; the message says what to do."""
+
+
+def sha256_file(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def load_history(run_dir):
+    path = pathlib.Path(run_dir) / "history.json"
+    try:
+        history = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise CardError(f"{path} is missing or unreadable ({err}): give the --out directory of a "
+                        "finished `ros2 run gravgrasp_detector train` run") from None
+    if not isinstance(history, list) or not history:
+        raise CardError(f"{path} has no epochs: the run has not finished an epoch")
+    return history
+
+
+def best_and_final(history):
+    """{key: (final value, best value, best epoch)}; NaN epochs are skipped for the best."""
+    out = {}
+    for key, _, better in METRICS:
+        values = [(h.get(key, math.nan), h["epoch"]) for h in history]
+        finite = [(v, e) for v, e in values if isinstance(v, (int, float)) and math.isfinite(v)]
+        best = better(finite, key=lambda ve: ve[0]) if finite else (math.nan, None)
+        out[key] = (values[-1][0], best[0], best[1])
+    return out
+
+
+def tables_dir_for(data_dir, tables=None):
+    """The grasp tables behind the scenes: --tables, or scenes/manifest.json's objects_dir."""
+    if tables:
+        return pathlib.Path(tables)
+    for manifest in (pathlib.Path(data_dir) / "scenes" / "manifest.json", pathlib.Path(data_dir) / "manifest.json"):
+        if manifest.is_file():
+            objects_dir = json.loads(manifest.read_text()).get("objects_dir")
+            if objects_dir:
+                return pathlib.Path(objects_dir)
+    return None
+
+
+def data_summary(data_dir, tables_dir):
+    """Run sim_bridge's data_report over the tables + scenes -> (text, {objects, grasps,
+    power_fraction}). data_report wants DIR/objects and DIR/scenes: a temporary
+    directory of two symlinks puts the separately stored tables and scenes there."""
+    tables_dir = pathlib.Path(tables_dir).resolve()
+    if (tables_dir / "objects").is_dir():
+        tables_dir = tables_dir / "objects"
+    data_dir = pathlib.Path(data_dir).resolve()
+    scenes_dir = data_dir / "scenes" if (data_dir / "scenes").is_dir() else data_dir
+    with tempfile.TemporaryDirectory(prefix="model_card_") as tmp:
+        os.symlink(tables_dir, pathlib.Path(tmp) / "objects")
+        os.symlink(scenes_dir, pathlib.Path(tmp) / "scenes")
+        proc = subprocess.run([sys.executable, "-m", "sim_bridge.data_report", tmp,
+                               "--png", str(pathlib.Path(tmp) / "report.png")],
+                              capture_output=True, text=True)
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        hint = " (source ros_ws/env.sh: sim_bridge is not on the path)" if "No module named" in last else ""
+        raise CardError(f"sim_bridge data_report failed on tables {tables_dir} + scenes {scenes_dir}: {last}{hint}")
+    lines = [line for line in proc.stdout.splitlines() if not line.startswith("histograms:")]
+    numbers = dict(line.split("=", 1) for line in lines if re.fullmatch(r"\w+=[\d.]+", line))
+    return "\n".join(lines), numbers
+
+
+def _fmt(value, digits=3):
+    if value is None:
+        return "—"
+    if isinstance(value, float):
+        return "n/a" if not math.isfinite(value) else f"{value:.{digits}g}"
+    return str(value)
+
+
+def _duration(seconds):
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d} (h:mm:ss, {seconds:.0f} s)"
+
+
+def _link(path, card_dir):
+    """Markdown link to `path` from the card, shown as the path given."""
+    return f"[{path}]({os.path.relpath(os.path.abspath(path), os.path.abspath(card_dir))})"
+
+
+def human_notes(existing_card):
+    """The paragraph a person wrote into an existing card, or the placeholder."""
+    if existing_card.is_file():
+        text = existing_card.read_text()
+        if HUMAN_START in text and HUMAN_END in text:
+            notes = text.split(HUMAN_START, 1)[1].split(HUMAN_END, 1)[0].strip()
+            if notes:
+                return notes
+    return HUMAN_PLACEHOLDER
+
+
+def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, argv=None):
+    """The card as Markdown text."""
+    run_dir = pathlib.Path(run_dir)
+    history = load_history(run_dir)
+    _, metadata = model_file.load_model(model_path)  # raises ModelFileError with its own message
+    td = metadata.get("training_data", {})
+    net, grid = metadata["network"], metadata["tsdf"]
+    card_dir = card_path.parent
+    stem = pathlib.Path(model_path).stem
+    lines = [f"# Model card: {stem}", "",
+             f"_Written by `ros2 run gravgrasp_detector model_card {' '.join(argv or [])}` on "
+             f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. Regenerate it rather than "
+             "editing it; only the paragraph under \"What a person saw\" is kept across regenerations._", ""]
+
+    lines += ["## Model", "", "| field | value |", "| --- | --- |"]
+    target = td.get("target", "?")
+    rows = [
+        ("file", f"`{model_path}` ({os.path.getsize(model_path) / 1e6:.2f} MB)"),
+        ("sha256", f"`{sha256_file(model_path)}`"),
+        ("created", f"{metadata.get('created_utc', '?')} (torch {metadata.get('torch_version', '?')})"),
+        ("architecture", f"`{metadata['architecture']}` (VGN 3D FCN, score / validness / rotation heads)"),
+        ("rotation representation", f"`{net.get('rotation_representation')}`"),
+        ("target", f"`{target}`" + (" — VGN-style classifier: the score head is untrained, grasps rank by "
+                                     f"validness; positive iff the grasp holds {td.get('nominal_mass_kg')} kg × g"
+                                     if target == "binary" else " — gravity-rejection score [N], ranked by score")),
+        ("training labels", f"`{td.get('subset', '?')}`" + (" (only grasps that settled as precision grasps)"
+                                                             if td.get("subset") == "precision-only" else "")),
+        ("score scale", f"{_fmt(net.get('score_scale_n'), 4)} N (softplus × scale; median training score)"),
+        ("input TSDF", f"{grid['size_m']} m cube, {grid['resolution']}³ voxels of {grid['voxel_size_m'] * 1000:g} mm, "
+                       f"truncation {grid['truncation_m'] * 1000:g} mm, convention `{grid['convention']}`"),
+        ("epochs, seed", f"{td.get('epochs', '?')}, {td.get('seed', '?')}"),
+    ]
+    lines += [f"| {k} | {v} |" for k, v in rows] + [""]
+
+    lines += ["## Data", ""]
+    data_dir = td.get("data")
+    lines.append(f"- scene files: `{data_dir}`; this run used {td.get('scenes_train', '?')} training + "
+                 f"{td.get('scenes_val', '?')} validation scenes (split by scene, seed {td.get('seed', '?')}) and "
+                 f"{td.get('labels_train', '?')} labelled voxels in its training scenes (after the label subset).")
+    tdir = tables_dir_for(data_dir, tables) if data_dir else None
+    if tdir is None:
+        lines.append("- grasp tables: not found (no scenes/manifest.json with objects_dir; pass --tables DIR).")
+    else:
+        text, numbers = data_summary(data_dir, tdir)
+        pf = numbers.get("power_fraction")
+        lines.append(f"- grasp tables: `{tdir}`: {numbers.get('objects', '?')} objects, {numbers.get('grasps', '?')} "
+                     f"held grasps, power fraction {float(pf):.3f}" if pf else f"- grasp tables: `{tdir}`")
+        lines += ["", "Dataset summary (`ros2 run sim_bridge data_report` over these tables and all scene files "
+                  "of the directory):", "", "```", text, "```"]
+    lines.append("")
+
+    lines += ["## Training", ""]
+    lines.append(f"- command (as `train` recorded it): `{td.get('command', 'not recorded')}`")
+    wall = td.get("train_wall_s", history[-1].get("wall_s"))
+    if wall is not None:
+        lines.append(f"- training time: {_duration(float(wall))} for {history[-1]['epoch']} epochs "
+                     f"({float(wall) / max(1, history[-1]['epoch']):.1f} s per epoch, validation included)")
+    m = td.get("machine")
+    if m:
+        lines.append(f"- machine: {m.get('cpu', '?')}, {m.get('cores', '?')} logical cores, torch threads "
+                     f"{m.get('torch_threads', '?')}, device {m.get('device', '?')}, bf16 autocast "
+                     f"{'on' if m.get('bf16') else 'off'}")
+    else:
+        lines.append("- machine: not recorded by this training run")
+    curve = run_dir / "training_curve.png"
+    if curve.is_file():
+        lines.append(f"- training curve: {_link(curve, card_dir)}")
+    lines.append("")
+
+    lines += ["## Validation metrics", "",
+              f"On the {td.get('scenes_val', '?')} validation scenes, whole volumes, no augmentation. The model "
+              "file holds the **final** epoch's weights; \"best\" is the best epoch for that metric alone.", "",
+              "| metric | final | best (epoch) |", "| --- | --- | --- |"]
+    final_epoch = history[-1]["epoch"]
+    for key, label, _ in METRICS:
+        final, best, epoch = best_and_final(history)[key]
+        lines.append(f"| {label} | {_fmt(final)} (epoch {final_epoch}) | {_fmt(best)} ({_fmt(epoch)}) |")
+    if target == "binary":
+        lines.append("")
+        lines.append("Score MAE is meaningless for the binary target (no score loss).")
+    lines.append("")
+
+    lines += ["## Qualitative check (paper Sec. V-A)", "",
+              "`make qualitative MODEL=" + str(model_path) + "`: Ø65×200 mm cylinder and 100×80×100 mm box on "
+              "the table, one camera at [0.5, 0, 0.5] m (coordinates from the workspace centre on the table "
+              "top; task = scene + (0.15, 0.15, 0.05) m). Slices z = 0.15 and 0.08 m (above the table) and "
+              "y = 0: input TSDF | score [N] with valid voxels circled and approach directions | validness.", ""]
+    pngs = [pathlib.Path(qualitative_dir) / name for name in SLICE_PNGS]
+    if any(p.is_file() for p in pngs):
+        lines += [f"- {_link(p, card_dir)}" + ("" if p.is_file() else " (missing)") for p in pngs]
+    else:
+        lines.append(f"_Not run yet: no PNGs in `{qualitative_dir}`._")
+    lines += ["", "### What a person saw", "", HUMAN_START, human_notes(card_path), HUMAN_END, ""]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    p = argparse.ArgumentParser(prog="model_card", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run", help="training output directory (model.pt, history.json, training_curve.png)")
+    p.add_argument("--model", default=None,
+                   help="the model file the card is for, e.g. models/gravgrasp.pt (a copy of RUN/model.pt); "
+                        "default RUN/model.pt")
+    p.add_argument("--tables", default=None,
+                   help="grasp tables directory (default: objects_dir from the scenes' manifest.json)")
+    p.add_argument("--qualitative", default=None,
+                   help="directory of `make qualitative` PNGs (default out/qualitative/<model stem>)")
+    p.add_argument("--out", default=None, help="card path (default: <model dir>/<model stem>.md)")
+    args = p.parse_args(argv)
+    run = pathlib.Path(args.run)
+    model = pathlib.Path(args.model) if args.model else run / "model.pt"
+    card = pathlib.Path(args.out) if args.out else model.with_suffix(".md")
+    qualitative = pathlib.Path(args.qualitative or f"out/qualitative/{model.stem}")
+    try:
+        run_model = run / "model.pt"
+        if model != run_model and run_model.is_file() and model.is_file() \
+                and sha256_file(model) != sha256_file(run_model):
+            raise CardError(f"{model} is not the model of {run} (sha256 differs from {run_model}): copy that "
+                            "model.pt there, or give the run directory that produced this model")
+        text = render_card(run, model, card, qualitative, args.tables, argv)
+    except (CardError, model_file.ModelFileError) as err:
+        print(f"model_card: {err}", file=sys.stderr)
+        return 2
+    card.parent.mkdir(parents=True, exist_ok=True)
+    tmp = card.with_name(card.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(card)
+    print(card)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
