@@ -204,7 +204,7 @@ def plot_slice(path, axis, position_scene_m, index, grid, outputs, voxel_size_m,
     if 0.0 < valid_2d.min() < validness_threshold < valid_2d.max():
         axes[2].contour(centres_u, centres_v, valid_2d.T, levels=[validness_threshold], colors="tab:orange",
                         linewidths=1.2)
-    axes[2].set_title(f"validness, {valid_2d.min():.2f}–{valid_2d.max():.2f} here\n"
+    axes[2].set_title(f"validness, {valid_2d.min():.3f}–{valid_2d.max():.3f} here\n"
                       f"(orange line: threshold {validness_threshold:g})")
 
     fig.suptitle(title, fontsize=11)
@@ -224,7 +224,8 @@ def plot_depth(path, depth):
     fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=DPI)
     im = ax.imshow(np.ma.masked_equal(depth, 0.0), cmap="viridis")
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("depth [m]")
-    ax.set_title(f"camera at scene {list(CAMERA_SCENE_M)} m, looking at the table centre")
+    ax.set_title(f"depth image, camera at scene {tuple(CAMERA_SCENE_M)} m\nlooking at the table centre",
+                 fontsize=10)
     ax.set_xlabel("u [px]")
     ax.set_ylabel("v [px]")
     fig.tight_layout()
