@@ -21,6 +21,7 @@ help:
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 	@echo "make qualitative   - paper V-A scene through MODEL (models/gravgrasp.pt): TSDF/score/validness slice PNGs"
+	@echo "make model-cards   - qualitative PNGs + models/<stem>.md card for every model of 'make models'"
 
 setup:
 	@ros_ws/setup.sh
@@ -93,3 +94,14 @@ MODEL ?= models/gravgrasp.pt
 qualitative: setup
 	@$(ROS) if [ ! -f "$(MODEL)" ]; then echo "make qualitative: $(MODEL) does not exist (no trained model yet; train one or pass MODEL=path.pt)" >&2; exit 2; fi; \
 	  ros2 run sim_bridge qualitative --model "$(MODEL)" --out "out/qualitative/$(basename $(notdir $(MODEL)))"
+
+# A card per model of `make models` (models/gravgrasp*.md), each after its qualitative PNGs.
+# Keeps the hand-written "What a person saw" paragraphs.
+.PHONY: model-cards
+model-cards: setup
+	@$(ROS) set -e; for spec in $(MODEL_VARIANTS); do \
+	  v=$${spec%%:*}; m=models/gravgrasp$$([ $$v = ours ] || echo _$$v).pt; \
+	  if [ ! -f $$m ]; then echo "make model-cards: $$m does not exist (make models)" >&2; exit 2; fi; \
+	  q=out/qualitative/$$(basename $$m .pt); ros2 run sim_bridge qualitative --model $$m --out $$q > /dev/null; \
+	  ros2 run gravgrasp_detector model_card out/training/$$v --model $$m --qualitative $$q; \
+	done
