@@ -205,7 +205,8 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
     lines.append(f"- command (as `train` recorded it): `{td.get('command', 'not recorded')}`")
     wall = td.get("train_wall_s", history[-1].get("wall_s"))
     if wall is not None:
-        lines.append(f"- training time: {_duration(float(wall))} for {history[-1]['epoch']} epochs "
+        n = history[-1]["epoch"]
+        lines.append(f"- training time: {_duration(float(wall))} for {n} epoch{'s' if n != 1 else ''} "
                      f"({float(wall) / max(1, history[-1]['epoch']):.1f} s per epoch, validation included)")
     m = td.get("machine")
     if m:
