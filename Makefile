@@ -16,6 +16,8 @@ help:
 	@echo "make bench-detect  - TSDF->grasps and depth-integration latency (median of 50+)"
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
+	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
+	@echo "make benchmark     - the full clutter-removal benchmark (hours: run it under nohup; resumable)"
 	@echo "make data-report   - summary of the committed per-object grasp tables"
 	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
@@ -56,6 +58,14 @@ bench-sim: setup
 
 bench-gripper: setup
 	@$(ROS) ros2 run robotiq_driver bench_gripper
+
+# Clutter removal against object weight (issue 8); both resume in their --out directory.
+.PHONY: benchmark benchmark-quick
+benchmark-quick: setup
+	@$(ROS) ros2 run sim_bridge benchmark --quick --out out/benchmark_quick --workers $(WORKERS)
+
+benchmark: setup
+	@$(ROS) ros2 run sim_bridge benchmark --out out/benchmark --workers $(WORKERS)
 
 data-report: setup
 	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v1

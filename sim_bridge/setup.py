@@ -23,6 +23,7 @@ setup(
             "data_report = sim_bridge.data_report:main",
             "sim = sim_bridge.sim_node:main",
             "demo = sim_bridge.clutter_demo:main",
+            "benchmark = sim_bridge.clutter_benchmark:main",
             "qualitative = sim_bridge.qualitative:main",
         ],
     },
