@@ -281,14 +281,18 @@ class SimCell:
         self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
                                       reachability=None, log=lambda *_: None)
         self.home = self.world.tcp_pose()
+        self._fallen = set()
 
     def objects_on_table(self) -> list:
         return [s.name for s in self.world.object_states() if not s.out_of_workspace]
 
     def remove_fallen(self) -> list:
-        fallen = [s.name for s in self.world.object_states() if s.out_of_workspace]
-        for name in fallen:
-            self.world.remove_object(name)
+        """Objects that left the cube since the last call. They are not removed from the
+        world: SimWorld.remove_object on a body still flying (a 1.5 kg object launched
+        by the hand, falling at 14 m/s) made a later Drake step segfault; off the table
+        they touch nothing, and objects_on_table leaves them out."""
+        fallen = [s.name for s in self.world.object_states() if s.out_of_workspace and s.name not in self._fallen]
+        self._fallen.update(fallen)
         return fallen
 
     def observe(self):
