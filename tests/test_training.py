@@ -63,7 +63,9 @@ def make_scene(path, rng):
     score = 40.0 - 200.0 * np.linalg.norm(p[:, :2] - centre, axis=1)  # best at the centre
     np.savez_compressed(path, tsdf=volume.grid(), label_index=index, label_score=score.astype(np.float32),
                         label_e_x=e_x.astype(np.float32), label_e_z=e_z.astype(np.float32),
-                        label_mode=(score > 35).astype(np.uint8))
+                        # the best-held grasps (centre) as power, the rest precision
+                        label_mode=np.where(score > 35, 0, 1).astype(np.uint8),
+                        mode_names=np.asarray(("power", "precision", "none")))
 
 
 @pytest.fixture(scope="module")
@@ -142,3 +144,16 @@ def test_missing_data_is_one_clear_error(tmp_path, capsys):
     assert training.main(["--data", str(tmp_path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "found 0 scene files" in err and "datagen scenes" in err
+
+
+def test_precision_only_keeps_the_grasps_named_precision_in_the_scene_file(scenes):
+    scene = training.load_scene(sorted(scenes.rglob("*.npz"))[0])
+    config = training.TrainConfig(data="", out="", subset="precision-only")
+    _, score, *_ = training.select_labels(scene, config)
+    precision = scene["mode"] == 1  # make_scene: mode_names[1] == "precision" (score <= 35)
+    assert len(score) == precision.sum() > 0
+    assert (score <= 35).all()
+    # A file that orders its names differently is read by name, not by number.
+    swapped = dict(scene, mode_names=("precision", "power", "none"))
+    _, score_swapped, *_ = training.select_labels(swapped, config)
+    assert (score_swapped > 35).all() and len(score_swapped) == (~precision).sum()

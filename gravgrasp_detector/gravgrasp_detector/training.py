@@ -42,7 +42,9 @@ import torch.nn.functional as F
 from . import model_file, networks, rotation, tsdf
 
 G_MPS2 = 9.81
-MODE_PRECISION, MODE_POWER = 0, 1
+# Mode names as sim_bridge.object_grasps writes them; scene files carry their own
+# `mode_names`, which win.
+DEFAULT_MODE_NAMES = ("power", "precision", "none")
 
 
 @dataclasses.dataclass
@@ -84,6 +86,7 @@ def load_scene(path):
                 "e_x": z["label_e_x"].astype(np.float32).reshape(-1, 3),
                 "e_z": z["label_e_z"].astype(np.float32).reshape(-1, 3),
                 "mode": z["label_mode"].astype(np.int64).reshape(-1) if "label_mode" in z else None,
+                "mode_names": [str(n) for n in z["mode_names"]] if "mode_names" in z else DEFAULT_MODE_NAMES,
             }
     except (OSError, KeyError, ValueError) as err:
         raise DataError(f"scene file {path} is unreadable or lacks tsdf/label_* arrays ({err}); "
@@ -99,7 +102,7 @@ def select_labels(scene, config: TrainConfig):
         if scene["mode"] is None:
             raise DataError("--data precision-only needs label_mode in the scene files; "
                             "regenerate scenes with a datagen that records grasp modes")
-        keep &= scene["mode"] == MODE_PRECISION
+        keep &= scene["mode"] == list(scene["mode_names"]).index("precision")
     index, score = scene["index"][keep], scene["score"][keep]
     valid = np.ones(len(score), np.float32)
     if config.target == "binary":
@@ -273,7 +276,7 @@ def _atomic_save(obj, path):
     os.replace(tmp, path)
 
 
-def train(config: TrainConfig, progress=True):
+def train(config: TrainConfig, progress=True, argv=None):
     """Train (or resume) and write model.pt, checkpoint.pt, history.json and
     training_curve.png into config.out. Returns the final validation metrics."""
     from tqdm import tqdm
@@ -350,7 +353,9 @@ def train(config: TrainConfig, progress=True):
         "labels_train": int(len(all_scores)), "target": config.target, "subset": config.subset,
         "nominal_mass_kg": config.nominal_mass_kg, "epochs": config.epochs, "seed": config.seed,
         "validation": history[-1] if history else {},
-        "command": "ros2 run gravgrasp_detector train " + " ".join(sys.argv[1:]),
+        "command": "ros2 run gravgrasp_detector train " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "argv": list(argv if argv is not None else sys.argv[1:]), "cwd": os.getcwd(),
+        "config": dataclasses.asdict(config),
         "train_wall_s": history[-1]["wall_s"] if history else 0.0,
         "machine": {"cpu": _cpu_model(), "cores": os.cpu_count(), "torch_threads": config.threads,
                     "device": device.type, "bf16": config.bf16},
@@ -423,10 +428,11 @@ def main(argv=None) -> int:
     p.add_argument("--bf16", action="store_true", help="bf16 autocast on CPU (AMX); ~3x faster here")
     p.add_argument("--max-scenes", type=int, default=0)
     p.add_argument("--no-progress", action="store_true")
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = vars(p.parse_args(argv))
     progress = not args.pop("no_progress")
     try:
-        metrics = train(TrainConfig(**args), progress=progress)
+        metrics = train(TrainConfig(**args), progress=progress, argv=argv)
     except DataError as err:
         print(f"train: {err}", file=sys.stderr)
         return 2
