@@ -210,3 +210,33 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     # Another configuration in the same directory is refused.
     assert cb.main(argv + ["--hold-s", "2"]) == 2
     assert "another configuration" in capsys.readouterr().err
+
+
+def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_removed():
+    """The cell on its own: a 34 mm cylinder (procedural test object 1) upright, a
+    top-down grasp 2.5 cm below its top -> executor, 1 s hold, shake, removal."""
+    import dataclasses
+
+    from sim_bridge.object_grasps import procedural_sources
+    from sim_bridge.sim_world import R_TOP_DOWN
+
+    source = procedural_sources(cb.PROCEDURAL_POOL, cb.PROCEDURAL_SEED)[1]
+    mesh = source.load().collision_mesh()
+    height_m = float(mesh.extents[2])
+    assert mesh.extents[0] < 0.05 and 0.08 < height_m < 0.15  # a slim upright cylinder
+    X = np.eye(4)
+    X[:3, 3] = [0.15, 0.15, 0.051 - mesh.bounds[0][2]]
+    scene = {"scene_id": "packed_t", "arrangement": "packed",
+             "objects": [{"source": dataclasses.asdict(source), "name": "c", "X_task_object": X.tolist()}]}
+    cell = cb.SimCell(scene, 0.5, cb.Protocol(time_step_s=0.002), tsdf.TSDFVolume(resolution=40))
+    view = cell.observe()
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = R_TOP_DOWN, [0.15, 0.15, 0.05 + height_m - 0.025]
+    g = types.SimpleNamespace(pose=pose, score_n=1.0, validness=1.0)
+    assert cell.feasible(g, view) == ""
+    result = cell.execute(g, view)
+    assert result["outcome"] == "success", result
+    assert len(result["lifted"]) == 1
+    assert cell.objects_on_table() == [] and cell.world.object_names() == []  # removed
+    assert np.allclose(cell.world.tcp_pose()[:3, 3], cell.home[:3, 3], atol=1e-3)  # back home
+    assert cell.world.finger_width_m() > 0.08  # open

@@ -149,7 +149,7 @@ def object_pool(meshes_dir: str | None, stroke_m: float | None = None):
             continue
         width = min_width_m(spec.collision_mesh())
         if width > stroke_m:
-            excluded.append({"name": s.name, "min_width_mm": round(width * 1e3, 1),
+            excluded.append({"name": spec.name, "source": s.source, "min_width_mm": round(width * 1e3, 1),
                              "reason": f"wider than the {stroke_m * 1e3:.0f} mm stroke in every direction"})
         else:
             usable.append(s)
