@@ -10,6 +10,8 @@ Protocol (one *round* = one method, one object weight, one scene):
   seed 0: disjoint), or `--meshes DIR` (URDF/OBJ). Objects wider than the 85 mm stroke
   in every direction (minimum width of the collision hull) are removed before the run
   and listed (excluded_objects.json, results.md), as the paper did.
+- Start: the scene settles at the round's weight (a heavier pile shifts; objects that
+  leave the cube then are `left_before_start`, not counted).
 - Attempt: the hand goes home (open, out of the cube) -> one depth image from the
   fixed camera (CameraSettings: 0.55 m from the table centre, 60 deg elevation) -> a
   fresh TSDF -> detection -> the best-ranked grasp that passes the executor's own
@@ -92,9 +94,7 @@ class Protocol:
     # keep the executor's 5 cm/s
     free_space_speed_mps: float = 0.5
     time_step_s: float = 1e-3      # label settings: dt 2 ms over-reads friction (SimSettings)
-    # SAP relaxation time; None = SimSettings' choice (0 at dt 1 ms). Neither 0 nor 1 ms
-    # keeps a 1.5 kg sphere of the quick pile scene from falling through the table
-    # (README, "Known problem"); the option is there to study it.
+    # SAP relaxation time; None = SimSettings' choice (0 at dt 1 ms)
     relaxation_time_s: float | None = None
     grip_force_n: float = 40.0     # the paper's
     attempts_per_object: int = 3
@@ -287,6 +287,22 @@ class SimCell:
                                       reachability=None, log=lambda *_: None)
         self.home = self.world.tcp_pose()
         self._fallen = set()
+
+    def settle(self, max_s: float = 2.0, speed_mps: float = 5e-3) -> float:
+        """Let the scene come to rest at the round's weight before the first view: the
+        layout was settled with the objects' own masses, and a heavier pile shifts (a
+        1.5 kg cylinder slid off a sphere, which rolled off the table). Returns the
+        simulated settling time."""
+        t0 = self.world.time_s
+        before = {s.name: s.X_task_object[:3, 3] for s in self.world.object_states()}
+        while self.world.time_s < t0 + max_s:
+            self.world.advance(0.1)
+            now = {s.name: s.X_task_object[:3, 3] for s in self.world.object_states() if not s.out_of_workspace}
+            speed = max((np.linalg.norm(p - before[n]) / 0.1 for n, p in now.items()), default=0.0)
+            before = now
+            if speed < speed_mps:
+                break
+        return self.world.time_s - t0
 
     def objects_on_table(self) -> list:
         return [s.name for s in self.world.object_states() if not s.out_of_workspace]
@@ -484,13 +500,16 @@ def run_round(task: RoundTask) -> dict:
     volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
     check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
     cell = SimCell(task.scene, task.mass_kg, task.protocol, volume)
-    n_objects = len(cell.objects_on_table())
-    names = cell.world.object_names()
+    settle_s = cell.settle()
+    left_before_start = cell.remove_fallen()  # not counted: no method could have grasped them
+    names = cell.objects_on_table()
+    n_objects = len(names)
     record = clear_table(cell, make_detector(model, metadata, task.protocol), n_objects,
                          task.protocol.attempts_per_object)
     return {"schema_version": SCHEMA_VERSION, "method": task.method, "model_sha256": task.model_sha256,
             "target": model_target(metadata), "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
-            "objects": names, "n_objects": n_objects, **record,
+            "objects": names, "n_objects": n_objects, "left_before_start": left_before_start,
+            "settle_s": round(settle_s, 2), **record,
             "successes": sum(a["success"] for a in record["attempts"]),
             "sim_time_s": round(cell.world.time_s, 3), "cpu_s": round(time.process_time() - t0, 1)}
 
@@ -651,6 +670,8 @@ def summarize(rounds: list, plan: dict) -> list:
             a = sum(len(r["attempts"]) for r in rs)
             o = sum(r["n_objects"] for r in rs)
             rows.append({"method": method, "mass_kg": float(w), "rounds": len(rs), "objects": o, "attempts": a,
+                         "left_before_start": sum(len(r.get("left_before_start", [])) for r in rs),
+                         "fell_off": sum(len(r["fell_off"]) for r in rs),
                          "successes": s, "SR": s / a if a else math.nan, "SR_ci95": wilson_interval(s, a),
                          "CR": s / o if o else math.nan, "CR_ci95": wilson_interval(s, o)})
     return rows
@@ -677,7 +698,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
     atomic_files.save_json(out / "attempts.json", {
         "schema_version": SCHEMA_VERSION, "attempts": attempts,
         "rounds": [{k: r[k] for k in ("method", "mass_kg", "scene_id", "objects", "n_objects", "end",
-                                      "successes", "fell_off", "sim_time_s")} | {"attempts": len(r["attempts"])}
+                                      "successes", "fell_off", "left_before_start", "sim_time_s")} | {"attempts": len(r["attempts"])}
                    for r in rounds]})
     rows = summarize(rounds, plan)
     atomic_files.save_json(out / "results.json", rows)
@@ -688,12 +709,14 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
              f"hold {protocol.hold_s:.1f} s, shake +-{protocol.shake_m * 100:.0f} cm, grip {protocol.grip_force_n:.0f} N, "
              f"dt {protocol.time_step_s * 1e3:g} ms. SR = successes / attempts, CR = successes / objects, "
              "[95 % Wilson interval].", "",
-             "| method | weight [kg] | rounds | SR | SR 95 % CI | CR | CR 95 % CI | successes / attempts / objects |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| method | weight [kg] | rounds | SR | SR 95 % CI | CR | CR 95 % CI | successes / attempts / objects "
+             "| left before start / fell off |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['rounds']}/{expected} | {_pct(r['SR'])} | "
                      f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
-                     f"{r['successes']} / {r['attempts']} / {r['objects']} |")
+                     f"{r['successes']} / {r['attempts']} / {r['objects']} | "
+                     f"{r['left_before_start']} / {r['fell_off']} |")
     ends = {}
     for r in rounds:
         ends[r["end"]] = ends.get(r["end"], 0) + 1
