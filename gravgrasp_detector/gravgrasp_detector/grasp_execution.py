@@ -26,7 +26,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from robotiq_driver.gripper_client import GripperError, GripperTimeout
-from robotiq_driver.gripper_registers import ObjectStatus
+from robotiq_driver.gripper_registers import MAJOR_FAULTS, ObjectStatus
 from robotiq_driver.modbus_client import ModbusError
 
 from . import hand_clearance
@@ -214,18 +214,31 @@ class GraspExecutor:
             try:
                 self.gripper = self.gripper_factory()
                 state = self.gripper.read_state()
-                if not state.ready:
-                    self.gripper.activate(timeout_s=self.limits.gripper_timeout_s)
+                # A major fault (gFLT 0x0A-0x0F) stays latched until rACT 0 -> 1. We only get
+                # here armed, i.e. after a person re-armed following the fault: clear it.
+                if not state.ready or state.fault in MAJOR_FAULTS:
+                    self.gripper.activate(timeout_s=self.limits.gripper_timeout_s,
+                                          force=state.fault in MAJOR_FAULTS)
             except (GripperError, ModbusError, OSError) as err:
-                self.gripper = None
+                self._drop_gripper()
                 raise Abort(ResultCode.GRIPPER_FAULT, f"gripper unavailable: {err}") from None
         return self.gripper
+
+    def _drop_gripper(self):
+        """Forget the connection (closing it: the port is opened exclusively, so a
+        reconnect would fail while the old client holds it)."""
+        gripper, self.gripper = self.gripper, None
+        if gripper is not None and hasattr(gripper, "close"):
+            try:
+                gripper.close()
+            except (GripperError, ModbusError, OSError):
+                pass
 
     def _read(self, gripper):
         try:
             return gripper.read_state()
         except (GripperError, ModbusError) as err:
-            self.gripper = None
+            self._drop_gripper()
             raise Abort(ResultCode.GRIPPER_FAULT, f"gripper stopped answering: {err}") from None
 
     def _grip(self, gripper, width_m, what):
@@ -237,7 +250,7 @@ class GraspExecutor:
         except GripperTimeout as err:
             raise Abort(ResultCode.TIMEOUT, f"gripper {what} did not finish: {err}") from None
         except (GripperError, ModbusError) as err:
-            self.gripper = None  # reconnect (and re-activate) on the next attempt
+            self._drop_gripper()  # reconnect (and re-activate) on the next attempt
             raise Abort(ResultCode.GRIPPER_FAULT, f"gripper {what} failed: {err}") from None
 
     def _move(self, name, X, speed_mps):
