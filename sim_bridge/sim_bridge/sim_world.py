@@ -57,6 +57,7 @@ DRIVER_ANGLE_RAD = np.array([0.0, 0.057, 0.101, 0.158, 0.2, 0.258, 0.312, 0.352,
 PAD_GAP_M = 1e-3 * np.array([85.4, 80.14, 75.99, 70.37, 66.11, 60.07, 54.28, 49.93, 44.13,
                              38.34, 32.59, 26.89, 21.26, 15.7, 8.88, 3.53, 1.1])
 STROKE_M = hand_model.MAX_STROKE_M
+PARKING_SHELF_M = (5.0, 5.0, -5.0)  # top surface of the shelf removed objects go to (task frame)
 # d(gap)/d(angle), mean over the stroke: converts the commanded finger speed (m/s of
 # opening, as the 2F-85's rSP) to a driver rate.
 GAP_PER_DRIVER_RAD_M = (PAD_GAP_M[0] - PAD_GAP_M[-1]) / DRIVER_ANGLE_RAD[-1]
@@ -276,6 +277,9 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
     plant.RegisterCollisionGeometry(plant.world_body(), X_table, Box(1.0, 1.0, 0.05), "table", table_props)
     plant.RegisterVisualGeometry(plant.world_body(), X_table, Box(1.0, 1.0, 0.05), "table_visual",
                                  [0.6, 0.6, 0.6, 1.0])
+    # Where removed objects are parked: a shelf far out of view (no visual geometry).
+    X_shelf = RigidTransform([PARKING_SHELF_M[0] + 10.0, PARKING_SHELF_M[1], PARKING_SHELF_M[2] - 0.5])
+    plant.RegisterCollisionGeometry(plant.world_body(), X_shelf, Box(21.0, 2.0, 1.0), "parking_shelf", table_props)
     hand = hand_model.add_hand(plant, scene_graph, props, floating=True,
                                pad_contact_points=s.contact_model == "point")
     bodies = [spec.add_to_plant(plant, name=name, proximity_properties=props) for name, spec in objects]
@@ -813,14 +817,15 @@ class SimWorld:
 
     def remove_object(self, name: str) -> None:
         """Take an object out of the scene (the clutter-removal benchmark does this after
-        a successful grasp): it is parked far below the table and locked there."""
+        a successful grasp): it is put down on a shelf far out of view, 0.5 m from the
+        previous one. (Locking the body instead made a later SAP step crash in libdrake.)"""
         with self._lock:
             body = self._body(name)
             pc = self._plant_context()
             k = len(self._removed)
-            self.w.plant.SetFreeBodyPose(pc, body, _rigid(pose(p=(5.0 + 0.5 * k, 5.0, -5.0))))
+            x, y, z = PARKING_SHELF_M
+            self.w.plant.SetFreeBodyPose(pc, body, _rigid(pose(p=(x + 0.5 * k, y, z + 0.2))))
             self.w.plant.SetFreeBodySpatialVelocity(pc, body, _zero_velocity())
-            body.Lock(pc)
             self._removed.add(name)
 
     # -- camera -------------------------------------------------------------------
