@@ -33,6 +33,8 @@ from std_srvs.srv import SetBool, Trigger
 from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
 
+REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Response.UNREACHABLE)
+
 
 RESULT_NAMES = {getattr(ExecuteGrasp.Response, n): n for n in dir(ExecuteGrasp.Response)
                 if n.isupper() and isinstance(getattr(ExecuteGrasp.Response, n), int)}
@@ -212,22 +214,31 @@ def run(args) -> dict:
                 print("no grasp detected: round ends", flush=True)
                 report["end"] = "no grasp detected"
                 break
-            top = grasps.grasps[0]
             save_scene_png(client, grasps, out / f"attempt_{len(report['attempts']) + 1:02d}.png")
-            request = ExecuteGrasp.Request(use_index=False, grasp=top)
-            request.header = grasps.header
+            # Best-ranked first; a grasp the executor refuses before moving (hand in
+            # collision with the TSDF, unreachable) is no attempt: try the next one.
             t0 = time.monotonic()
-            response = client.call(ExecuteGrasp, "execute_grasp", request, 180)
+            for rank, top in enumerate(grasps.grasps):
+                request = ExecuteGrasp.Request(use_index=False, grasp=top)
+                request.header = grasps.header
+                response = client.call(ExecuteGrasp, "execute_grasp", request, 180)
+                if response.result_code not in REFUSED_BEFORE_MOTION:
+                    break
+            if response.result_code in REFUSED_BEFORE_MOTION:
+                print(f"none of the {len(grasps.grasps)} grasps passes the executor's checks "
+                      f"(last: {response.message}): round ends", flush=True)
+                report["end"] = "no executable grasp"
+                break
             lifted = []
             if client.states is not None:
                 lifted = [n for n, l in zip(client.states.names, client.states.lifted) if l]
             success = response.success and bool(lifted)
-            attempt = {"score_n": float(top.gravity_rejection_score), "validness": float(top.validness),
+            attempt = {"rank": rank, "score_n": float(top.gravity_rejection_score), "validness": float(top.validness),
                        "result": RESULT_NAMES.get(response.result_code, str(response.result_code)),
                        "message": response.message,
                        "lifted": lifted, "success": success, "wall_s": round(time.monotonic() - t0, 1)}
             report["attempts"].append(attempt)
-            print(f"attempt {len(report['attempts'])}: score {top.gravity_rejection_score:.1f} N -> "
+            print(f"attempt {len(report['attempts'])}: grasp #{rank + 1} score {top.gravity_rejection_score:.1f} N -> "
                   f"{'SUCCESS' if success else 'FAIL'} ({response.message})", flush=True)
             for name in lifted:
                 client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
