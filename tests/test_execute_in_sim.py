@@ -124,13 +124,8 @@ def test_refusals_then_a_successful_lift(world):
 def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     node, seen, call = world["node"], world["seen"], world["spin"].call
     # Put the scene back as it was (the previous test lifted the box) and re-fuse it.
-    load = call(node.create_client(LoadScene, "load_scene"),
-                LoadScene.Request(seed=2, n_objects=1, arrangement="packed"), 120)
-    assert load.success, load.message
-    assert call(node.create_client(Trigger, "tsdf/reset"), Trigger.Request()).success
-    t_reset = node.get_clock().now().nanoseconds
-    assert wait_until(lambda: seen["tsdf"].header.stamp.sec * 10**9 + seen["tsdf"].header.stamp.nanosec
-                      > t_reset + 1e9 and not seen["states"].lifted[0], 30)
+    t_reset = reload_scene(world)
+    assert wait_until(lambda: stamp_ns(seen["tsdf"]) > t_reset + 1e9 and not seen["states"].lifted[0], 30)
     obj = seen["states"].poses[0].position
     p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
     client = node.create_client(ExecuteGrasp, "execute_grasp")
@@ -165,6 +160,10 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     assert call(client, request(p, q), 60).result_code == R.NOT_ARMED
 
 
+def stamp_ns(msg):
+    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+
+
 def reload_scene(world):
     """The seed-2 box back on the table, the TSDF re-fused from frames after the reset."""
     node, seen, call = world["node"], world["seen"], world["spin"].call
@@ -178,10 +177,6 @@ def reload_scene(world):
 def test_top_grasp_from_the_detector_lifts_the_box(world):
     node, seen, call = world["node"], world["seen"], world["spin"].call
     t_reset = reload_scene(world)
-
-    def stamp_ns(msg):
-        return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-
     # Grasps detected in a volume fused after the reset (2+ frames at 4 Hz).
     assert wait_until(lambda: "grasps" in seen and stamp_ns(seen["grasps"]) > t_reset + 0.6e9
                       and not seen["states"].lifted[0], 60), "no fresh /grasps from the detector"

@@ -208,11 +208,7 @@ def plot_slice(path, axis, position_scene_m, index, grid, outputs, voxel_size_m,
                       f"(orange line: threshold {validness_threshold:g})")
 
     fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=DPI)
-    plt.close(fig)
-    tmp.replace(path)
+    _save_atomically(fig, path)
 
 
 def plot_depth(path, depth):
@@ -228,6 +224,12 @@ def plot_depth(path, depth):
                  fontsize=10)
     ax.set_xlabel("u [px]")
     ax.set_ylabel("v [px]")
+    _save_atomically(fig, path)
+
+
+def _save_atomically(fig, path):
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp, dpi=DPI)
