@@ -215,7 +215,7 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
     weld = plant.GetJointByName("world_welds_to_base_mount", mi)
     plant.RemoveJoint(weld)
     if floating:
-        plant.SetDefaultFreeBodyPose(mount, X_W_flange @ RigidTransform([0.0, 0.0, 0.007]))
+        plant.SetDefaultFloatingBaseBodyPose(mount, X_W_flange @ RigidTransform([0.0, 0.0, 0.007]))
     else:
         plant.WeldFrames(plant.world_frame(), flange, X_W_flange)
 
