@@ -14,6 +14,7 @@ import contextlib
 import hashlib
 import multiprocessing
 import os
+import sys
 
 from tqdm import tqdm
 
@@ -29,6 +30,23 @@ def _init_worker():
     # one core per simulation; keep BLAS/OpenMP from oversubscribing
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    _die_with_parent()
+
+
+def _die_with_parent():
+    """Linux: SIGTERM this worker when the process that started it dies. A killed
+    `datagen` (kill, a closed terminal, a session's end) otherwise left its pool workers
+    simulating for nobody, holding the cores, for hours."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    PR_SET_PDEATHSIG = 1
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() == 1:  # the parent died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 @contextlib.contextmanager
