@@ -248,6 +248,9 @@ class GraspExecutor:
             return gripper.move_and_wait(width_m, self.limits.grip_speed_mps, force,
                                          timeout_s=self.limits.gripper_timeout_s)
         except GripperTimeout as err:
+            if self.estopped.is_set():  # estop() stopped the fingers mid-motion
+                raise Abort(ResultCode.NOT_ARMED, f"emergency stop during gripper {what}: fingers halted; "
+                                                  "release it and arm again (service ~/arm)") from None
             raise Abort(ResultCode.TIMEOUT, f"gripper {what} did not finish: {err}") from None
         except (GripperError, ModbusError) as err:
             self._drop_gripper()  # reconnect (and re-activate) on the next attempt
