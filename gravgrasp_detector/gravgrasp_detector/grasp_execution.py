@@ -26,7 +26,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from robotiq_driver.gripper_client import GripperError, GripperTimeout
-from robotiq_driver.gripper_registers import MAJOR_FAULTS, ObjectStatus
+from robotiq_driver.gripper_registers import ObjectStatus
 from robotiq_driver.modbus_client import ModbusError
 
 from . import hand_clearance
@@ -213,12 +213,9 @@ class GraspExecutor:
         if self.gripper is None:
             try:
                 self.gripper = self.gripper_factory()
-                state = self.gripper.read_state()
-                # A major fault (gFLT 0x0A-0x0F) stays latched until rACT 0 -> 1. We only get
-                # here armed, i.e. after a person re-armed following the fault: clear it.
-                if not state.ready or state.fault in MAJOR_FAULTS:
-                    self.gripper.activate(timeout_s=self.limits.gripper_timeout_s,
-                                          force=state.fault in MAJOR_FAULTS)
+                # Also clears a latched major fault: we only get here armed, i.e. after a
+                # person re-armed following the fault.
+                self.gripper.activate(timeout_s=self.limits.gripper_timeout_s)
             except (GripperError, ModbusError, OSError) as err:
                 self._drop_gripper()
                 raise Abort(ResultCode.GRIPPER_FAULT, f"gripper unavailable: {err}") from None

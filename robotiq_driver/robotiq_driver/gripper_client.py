@@ -131,10 +131,11 @@ class Robotiq2F85:
         self.write_command(GripperCommand())
 
     def activate(self, timeout_s: float = 5.0, force: bool = False) -> GripperState:
-        """Activate (reset first) and wait for gSTA = 3. A no-op if already active,
-        unless ``force``. The fingers open fully during activation."""
+        """Activate (reset first) and wait for gSTA = 3. A no-op if already active with
+        no major fault latched (one only clears with rACT 0 -> 1), unless ``force``. The
+        fingers open fully during activation."""
         state = self.read_state()
-        if state.ready and not force:
+        if state.ready and state.fault not in MAJOR_FAULTS and not force:
             return state
         self.reset()
         self.write_command(GripperCommand(activate=True))
