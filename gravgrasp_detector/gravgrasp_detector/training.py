@@ -348,13 +348,14 @@ def train(config: TrainConfig, progress=True, argv=None):
                       "optimizer": optimizer.state_dict(), "epoch": epoch + 1, "history": history,
                       "torch_rng": torch.get_rng_state()}, checkpoint_path)
 
+    argv = list(sys.argv[1:] if argv is None else argv)
     summary = {
         "data": os.path.abspath(config.data), "scenes_train": len(train_scenes), "scenes_val": len(val_scenes),
         "labels_train": int(len(all_scores)), "target": config.target, "subset": config.subset,
         "nominal_mass_kg": config.nominal_mass_kg, "epochs": config.epochs, "seed": config.seed,
         "validation": history[-1] if history else {},
-        "command": "ros2 run gravgrasp_detector train " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "argv": list(argv if argv is not None else sys.argv[1:]), "cwd": os.getcwd(),
+        "command": "ros2 run gravgrasp_detector train " + " ".join(argv),
+        "argv": argv, "cwd": os.getcwd(),
         "config": dataclasses.asdict(config),
         "train_wall_s": history[-1]["wall_s"] if history else 0.0,
         "machine": {"cpu": _cpu_model(), "cores": os.cpu_count(), "torch_threads": config.threads,
