@@ -613,8 +613,10 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
                 pending = [t for t in pending if t.scene_id not in scenes]
                 if pending:
                     run_tasks(ex, make_scene, pending, on_scene, desc="scenes", progress=progress)
+                # Scene-major order: a run cut short has every method on the same scenes.
                 tasks = [RoundTask(m, path, shas[m], w, scenes[sid], protocol)
-                         for m, path in methods.items() for w in plan[m] for sid in ids if not done(m, w, sid)]
+                         for sid in ids for w in sorted({w for ws in plan.values() for w in ws})
+                         for m, path in methods.items() if w in plan[m] and not done(m, w, sid)]
                 errors.clear()
                 if tasks:
                     run_tasks(ex, _guarded_round, tasks, on_round, desc="rounds", progress=progress)
