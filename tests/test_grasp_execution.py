@@ -99,6 +99,24 @@ def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
     assert "slipped out" in outcome.message
 
 
+def test_object_that_shifts_in_the_hand_during_the_lift_is_held(gripper_port, fingers):
+    """The fingers move on while the object re-seats (gOBJ 0) and stop on it again:
+    judged once they are still, that is a held object, not a drop."""
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def shift_on_lift(X, speed, timeout):
+        if len(arm.targets) == 2:  # the lift: the object slides 5 mm deeper between the fingers
+            fingers.object_width_m = 0.045
+            gripper_port.emulator.advance()
+        return original(X, speed, timeout)
+
+    arm.move_to = shift_on_lift
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.SUCCESS, outcome.message
+    assert "opening 45.0 mm" in outcome.message
+
+
 def test_refusals_say_why_and_do_not_move(gripper_port):
     ex, arm = make_executor(gripper_port, armed=False)
     outcome = ex.execute(grasp())

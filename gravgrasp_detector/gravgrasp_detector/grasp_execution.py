@@ -194,7 +194,7 @@ class GraspExecutor:
             self._move("lift (retreat)", poses["pregrasp"], lim.approach_speed_mps)
             raise Abort(ResultCode.NO_OBJECT, "the fingers closed on nothing: the grasp missed the object")
         self._move("lift", poses["lift"], lim.approach_speed_mps)
-        held = self._read(gripper)
+        held = self._after_lift(gripper)
         width = gripper.width_m(held)
         if held.object_status != ObjectStatus.CONTACT_CLOSING or width <= lim.closed_width_m:
             return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift (gOBJ={int(held.object_status)}, "
@@ -237,6 +237,22 @@ class GraspExecutor:
         except (GripperError, ModbusError) as err:
             self._drop_gripper()
             raise Abort(ResultCode.GRIPPER_FAULT, f"gripper stopped answering: {err}") from None
+
+    def _after_lift(self, gripper):
+        """The gripper's state once the fingers are still again. Lifting can shift the
+        object in the hand: the fingers move on (gOBJ 0) until they stop on it again
+        (an underactuated finger wrapping into a power grasp) or close on nothing (it
+        slipped out). A read in that moment is neither, so wait for the end."""
+        state = self._read(gripper)
+        if state.object_status != ObjectStatus.MOVING:
+            return state
+        try:
+            return gripper.wait(timeout_s=self.limits.gripper_timeout_s)
+        except GripperTimeout as err:
+            raise Abort(ResultCode.TIMEOUT, f"fingers still moving after the lift: {err}") from None
+        except (GripperError, ModbusError) as err:
+            self._drop_gripper()
+            raise Abort(ResultCode.GRIPPER_FAULT, f"gripper failed after the lift: {err}") from None
 
     def _grip(self, gripper, width_m, what):
         self._require_armed(what.rstrip("ing") + "e the gripper")

@@ -219,7 +219,7 @@ class SimArm:
 
 class SimGripper:
     """The executor's gripper client (Robotiq2F85's read_state / activate /
-    move_and_wait / width_m / stop) on a SimWorld's finger servo, in simulated time,
+    move_and_wait / wait / width_m / stop) on a SimWorld's finger servo, in simulated time,
     without the Modbus emulator: deterministic, and no wall-clock polling."""
 
     STEP_S = 0.01
@@ -247,10 +247,13 @@ class SimGripper:
         return self.scale.counts_to_width(state.position)
 
     def move_and_wait(self, width_m, speed_mps, force_n, timeout_s):
-        from robotiq_driver.gripper_client import GripperTimeout
-
         self._closing = width_m < self.world.finger_width_m()
         self.world.command_fingers(width_m, speed_mps, force_n)
+        return self.wait(timeout_s)
+
+    def wait(self, timeout_s, requested=None):
+        from robotiq_driver.gripper_client import GripperTimeout
+
         t_end = self.world.time_s + timeout_s
         while self.world.time_s < t_end:
             self.world.advance(self.STEP_S)
