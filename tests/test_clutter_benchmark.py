@@ -192,7 +192,13 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     results = json.loads((out / "results.json").read_text())
     row = next(r for r in results if r["method"] == "ours")
     assert row["SR"] == pytest.approx(row["successes"] / row["attempts"])
-    assert "| ours | 0.3 | 1/1 |" in (out / "results.md").read_text()
+    md = (out / "results.md").read_text()
+    assert "| ours | 0.3 | 1/1 |" in md
+    # Every attempt appears once in the outcome table.
+    header = next(line for line in md.splitlines() if line.startswith("| method | weight [kg] | success"))
+    outcome_row = [line for line in md.splitlines() if line.startswith("| ours | 0.3 |")][-1]
+    counts = dict(zip(header.strip("| ").split(" | ")[2:], map(int, outcome_row.strip("| ").split(" | ")[2:])))
+    assert sum(counts.values()) == ours["attempts"] and counts["success"] == row["successes"]
     assert (out / "sr_cr_vs_weight.png").stat().st_size > 1000
     scene = json.loads((out / "scenes" / "packed_000.json").read_text())
     assert [o["source"]["proc_seed"] for o in scene["objects"]] == [cb.PROCEDURAL_SEED] * cb.OBJECTS_PER_SCENE

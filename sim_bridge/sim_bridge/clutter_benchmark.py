@@ -724,6 +724,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
                      f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
                      f"{r['successes']} / {r['attempts']} / {r['objects']} | "
                      f"{r['left_before_start']} / {r['fell_off']} |")
+    lines += ["", *outcome_lines(rounds, plan)]
     ends = {}
     for r in rounds:
         ends[r["end"]] = ends.get(r["end"], 0) + 1
@@ -734,6 +735,24 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
     atomic_files.save_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
     plot(rows, plan, out / "sr_cr_vs_weight.png")
     return rows
+
+
+def outcome_lines(rounds, plan) -> list:
+    """Markdown table: how every attempt ended, per method and weight (why SR is what it is)."""
+    counts = {}
+    for r in rounds:
+        row = counts.setdefault((r["method"], float(r["mass_kg"])), {})
+        for a in r["attempts"]:
+            row[a["outcome"]] = row.get(a["outcome"], 0) + 1
+    outcomes = ["success", *sorted({o for row in counts.values() for o in row} - {"success"})]
+    lines = ["Outcomes of the attempts:", "", "| method | weight [kg] | " + " | ".join(outcomes) + " |",
+             "| --- | --- |" + " --- |" * len(outcomes)]
+    for method, weights_kg in plan.items():
+        for w in weights_kg:
+            row = counts.get((method, float(w)))
+            if row:
+                lines.append(f"| {method} | {w:g} | " + " | ".join(str(row.get(o, 0)) for o in outcomes) + " |")
+    return lines
 
 
 def _pct(x):
