@@ -17,7 +17,7 @@ help:
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
-	@echo "make benchmark     - clutter removal: 4 scenes x 0.1/0.5/1.5 kg, all methods (~1.5 h; nohup; resumable)"
+	@echo "make benchmark     - clutter removal: 8 scenes x 0.1/0.5/1.5 kg, all methods (~2 h; nohup; resumable)"
 	@echo "make data-report   - summary of the committed per-object grasp tables"
 	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
@@ -64,9 +64,9 @@ bench-gripper: setup
 benchmark-quick: setup
 	@$(ROS) ros2 run sim_bridge benchmark --quick --out out/benchmark_quick --workers $(WORKERS)
 
-# The size reported in the README (~1.5 h on 2 cores). The paper's size, 10 scenes x
+# The size reported in the README (~2 h on 2 cores). The paper's size, 10 scenes x
 # 0.1,0.3,0.5,0.8,1.0,1.5 kg (~6 h), extends the same directory: BENCH_SIZE=
-BENCH_SIZE ?= --scenes 4 --weights 0.1,0.5,1.5 --ablation-weights 0.5
+BENCH_SIZE ?= --scenes 8 --weights 0.1,0.5,1.5 --ablation-weights 0.5
 benchmark: setup
 	@$(ROS) ros2 run sim_bridge benchmark --out out/benchmark --workers $(WORKERS) $(BENCH_SIZE)
 
