@@ -1,10 +1,12 @@
 """The executor's core: every refusal and every outcome, against the Robotiq emulator
 over a real pseudo-terminal (Modbus RTU) and a recording arm.
 
-The arm here is a test double (it records target poses and can block); the end-to-end
-tests drive the Drake sim bridge instead.
+The arm here is a test double (it records target poses and can block) and the object
+is a 50 mm block that is between the fingers at the grasp pose, or while they hold
+it; the end-to-end tests drive the Drake sim bridge instead.
 """
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -18,21 +20,50 @@ from robotiq_driver.pty_modbus_server import PtyModbusServer
 DOWN = [1.0, 0.0, 0.0, 0.0]  # quaternion (x, y, z, w): 180 deg about x -> TCP z points down
 
 
+class ObjectAtGrasp(KinematicFingers):
+    """Fingers and one object of `size_m`: it is between them while the hand is at the
+    grasp pose (`at_grasp`, set by the arm) or while they hold it; opened, it falls away.
+    `lose()` makes a held object slip out."""
+
+    def __init__(self, size_m=0.05, fingers_meet_m=0.0):
+        super().__init__(fingers_meet_m=fingers_meet_m)
+        self.size_m, self.at_grasp, self.held = size_m, False, False
+
+    def lose(self):
+        """The object slips out of the hand."""
+        self.at_grasp = self.held = False
+
+    def advance(self, dt_s, width_m, target_width_m, speed_mps, force_n):
+        there = self.size_m is not None and (self.at_grasp or self.held)
+        self.object_width_m = self.size_m if there else None
+        reading = super().advance(dt_s, width_m, target_width_m, speed_mps, force_n)
+        if there and reading.blocked and abs(reading.width_m - self.size_m) < 1e-9:
+            self.held = True
+        elif not there or (target_width_m > width_m and reading.width_m > self.size_m):
+            self.held = False
+        return reading
+
+
 class RecordingArm:
-    def __init__(self):
+    def __init__(self, fingers=None):
         self.targets = []
+        self.fingers = fingers
         self.gate = None  # an Event the arm waits on, to hold an execution open
 
     def move_to(self, X, speed_mps, timeout_s):
         self.targets.append((X.copy(), speed_mps))
+        if self.fingers is not None:
+            self.fingers.at_grasp = False  # the hand leaves where it was
         if self.gate is not None and not self.gate.wait(timeout_s):
             return False, "timed out"
+        if self.fingers is not None:  # the approach ends at the grasp pose, where the object is
+            self.fingers.at_grasp = speed_mps == pytest.approx(0.05) and X[2, 3] < 0.1
         return True, "done"
 
 
 @pytest.fixture
 def fingers():
-    return KinematicFingers(object_width_m=0.05)
+    return ObjectAtGrasp(0.05)
 
 
 @pytest.fixture
@@ -44,7 +75,7 @@ def gripper_port(tmp_path, fingers):
 
 
 def make_executor(gripper_port, reach=None, armed=True, **limits):
-    arm = RecordingArm()
+    arm = RecordingArm(gripper_port.emulator.plant)
     lim = ge.ExecutionLimits(grip_speed_mps=0.15, **limits)
     ex = ge.GraspExecutor(arm, lambda: Robotiq2F85(gripper_port.port, timeout_s=0.1, retries=1), lim, reach)
     ex.arm_motion(armed)
@@ -73,11 +104,71 @@ def test_successful_grasp_moves_through_pregrasp_grasp_lift(gripper_port):
 
 
 def test_closing_on_nothing_is_no_object(gripper_port, fingers):
-    fingers.object_width_m = None
+    fingers.size_m = None
     ex, arm = make_executor(gripper_port)
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.NO_OBJECT
     assert arm.targets[-1][0][2, 3] == pytest.approx(0.13)  # retreated to the pre-grasp pose
+    assert gripper_port.emulator.width_m == pytest.approx(0.085)  # opened before retreating
+
+
+@pytest.mark.parametrize("meet_mm", [0.0, 1.1, 3.7, 8.0])
+def test_fingers_that_meet_and_report_an_object_are_no_false_success(tmp_path, meet_mm):
+    """A 2F-85 closing on nothing can stop with its fingertips touching and report an
+    object (gOBJ 2), at an opening that differs per unit. Calibrated per connection,
+    the executor says NO_OBJECT for a miss and DROPPED for an object lost in the lift,
+    wherever the fingers meet, and SUCCESS for a held 20 mm object."""
+    fingers = ObjectAtGrasp(None, fingers_meet_m=meet_mm * 1e-3)
+    emulator = GripperEmulator(fingers, activation_time_s=0.05)
+    with PtyModbusServer(emulator, link_path=str(tmp_path / "ttyGripper")) as server:
+        server.emulator = emulator
+        ex, arm = make_executor(server)
+        miss = ex.execute(grasp())
+        assert ex.calibration.width_m == pytest.approx(meet_mm * 1e-3, abs=0.4e-3)  # one count is 0.33 mm
+        assert miss.code == ge.ResultCode.NO_OBJECT, miss.message
+        if meet_mm > 0:
+            assert "where they close on nothing" in miss.message and "gOBJ 2" in miss.message
+
+        fingers.size_m = 0.02
+        assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS
+
+        original = arm.move_to
+
+        def drop_on_lift(X, speed, timeout):
+            if X[2, 3] > 0.2:  # the lift: the object slips out, the fingers close on to where they meet
+                fingers.lose()
+            return original(X, speed, timeout)
+
+        arm.move_to = drop_on_lift
+        dropped = ex.execute(grasp())
+        assert dropped.code == ge.ResultCode.DROPPED, dropped.message
+
+
+def test_a_pinch_thinner_than_the_margin_is_released_not_claimed(gripper_port, fingers):
+    """An object 2 mm wider than where the fingers meet cannot be told from an empty
+    hand: NO_OBJECT, and the fingers open so the answer matches what the hand holds."""
+    fingers.fingers_meet_m, fingers.size_m = 0.0037, 0.0057
+    ex, arm = make_executor(gripper_port)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NO_OBJECT, outcome.message
+    assert gripper_port.emulator.width_m == pytest.approx(0.085) and not fingers.held
+
+
+def test_stored_calibration_is_used_and_checked(gripper_port):
+    ex, arm = make_executor(gripper_port, empty_closed_width_m=0.001)
+    assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS
+    assert ex.calibration.source == "stored" and ex.calibration.width_m == 0.001
+    with pytest.raises(ValueError, match="gripper_cli calibrate"):  # 30 mm is no empty hand
+        make_executor(gripper_port, empty_closed_width_m=0.03)
+
+
+def test_calibration_refuses_a_hand_that_is_not_empty(gripper_port, fingers):
+    fingers.held = True  # something stuck between the fingers: they cannot open past it
+    fingers.at_grasp = True
+    ex, arm = make_executor(gripper_port)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.GRIPPER_FAULT and "something is between" in outcome.message
+    assert arm.targets == [] and not ex.armed
 
 
 def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
@@ -86,7 +177,7 @@ def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
 
     def drop_on_lift(X, speed, timeout):
         if len(arm.targets) == 2:  # the third move is the lift: the object slips out
-            fingers.object_width_m = None
+            fingers.lose()
             gripper_port.emulator.advance()
         return original(X, speed, timeout)
 
@@ -105,7 +196,7 @@ def test_object_that_shifts_in_the_hand_during_the_lift_is_held(gripper_port, fi
 
     def shift_on_lift(X, speed, timeout):
         if len(arm.targets) == 2:  # the lift: the object slides 5 mm deeper between the fingers
-            fingers.object_width_m = 0.045
+            fingers.size_m = 0.045
             gripper_port.emulator.advance()
         return original(X, speed, timeout)
 

@@ -31,7 +31,8 @@ from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
 from .arm_reachability import ArmReachability
-from .grasp_execution import Abort, ExecutionLimits, GraspExecutor, Outcome, ResultCode, pose_to_matrix
+from .grasp_execution import (Abort, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome, ResultCode,
+                              pose_to_matrix)
 from .tsdf_node import VOLUME_QOS
 
 
@@ -44,10 +45,14 @@ def matrix_to_pose(X, pose):
 
 
 class ServiceArm:
-    """grasp_execution.Arm over the MoveToPose service."""
+    """grasp_execution.Arm over the MoveToPose service. A service that leaves the ROS
+    graph during a move (the adapter crashed or was stopped) raises ArmUnavailable once
+    it has been gone for `gone_s`, instead of waiting out the whole motion timeout."""
 
-    def __init__(self, node: Node, service: str, stop_service: str, frame_id: str):
-        self.node, self.frame_id = node, frame_id
+    POLL_S = 0.1
+
+    def __init__(self, node: Node, service: str, stop_service: str, frame_id: str, gone_s: float = 1.0):
+        self.node, self.frame_id, self.gone_s = node, frame_id, gone_s
         self.client = node.create_client(MoveToPose, service, callback_group=ReentrantCallbackGroup())
         self.stop_client = node.create_client(Trigger, stop_service, callback_group=ReentrantCallbackGroup())
 
@@ -67,9 +72,21 @@ class ServiceArm:
         done = threading.Event()
         future = self.client.call_async(request)
         future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout_s):
-            future.cancel()
-            return False, f"arm motion timed out after {timeout_s:.0f} s"
+        deadline = time.monotonic() + timeout_s
+        gone_since = None
+        while not done.wait(min(self.POLL_S, max(0.0, deadline - time.monotonic()))):
+            now = time.monotonic()
+            if now >= deadline:
+                future.cancel()
+                return False, f"arm motion timed out after {timeout_s:.0f} s"
+            if self.client.service_is_ready():
+                gone_since = None
+            elif gone_since is None:
+                gone_since = now
+            elif now - gone_since >= self.gone_s:
+                future.cancel()
+                raise ArmUnavailable(f"service {self.client.srv_name} left the ROS graph "
+                                     f"{now - gone_since:.1f} s ago without answering")
         response = future.result()
         return bool(response.success), response.message
 
@@ -108,7 +125,17 @@ class ExecuteNode(Node):
             lift_height_m=param("lift_height_m", defaults.lift_height_m, "lift after closing [m]"),
             gripper_timeout_s=param("gripper_timeout_s", defaults.gripper_timeout_s, "per gripper motion [s]"),
             arm_timeout_s=param("arm_timeout_s", defaults.arm_timeout_s, "per arm motion [s]"),
+            min_object_width_m=param("min_object_width_m", defaults.min_object_width_m,
+                                     "held = gOBJ 2 and an opening at least this much wider than the "
+                                     "empty-closed calibration [m]"),
         )
+        empty_closed = param("gripper_empty_closed_m", -1.0,
+                             "opening where this gripper's fingers stop closing on nothing [m], as measured "
+                             "with gripper_cli calibrate; negative: measure it on every connection")
+        limits.empty_closed_width_m = None if empty_closed < 0 else float(empty_closed)
+        self.max_tsdf_age_s = param("max_tsdf_age_s", 5.0,
+                                    "refuse a grasp (STALE_SCENE) when the latest TSDF is older than this [s] "
+                                    "or none arrived; 0: no TSDF needed (no collision check without one)")
         X_task_base = np.eye(4)
         c, s = np.cos(base[3]), np.sin(base[3])
         X_task_base[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
@@ -133,6 +160,8 @@ class ExecuteNode(Node):
         self.create_service(SetBool, "~/arm", self._on_arm, callback_group=ReentrantCallbackGroup())
         self.get_logger().info(f"execute ready: gripper on {port}, arm via {arm_service}, "
                                f"{'armed' if self.executor_core.armed else 'disarmed (call ~/arm)'}")
+        if limits.empty_closed_width_m is not None:
+            self.get_logger().info(f"gripper empty-closed opening: {limits.empty_closed_width_m * 1e3:.1f} mm (stored)")
 
     def _on_grasps(self, msg):
         self.latest_grasps = msg
@@ -157,6 +186,16 @@ class ExecuteNode(Node):
 
     def _tsdf_arrays(self):
         msg = self.latest_tsdf
+        if self.max_tsdf_age_s > 0:
+            if msg is None:
+                raise Abort(ResultCode.STALE_SCENE, "no TSDF received yet: the collision check needs a current view; "
+                                                    "check the camera and the tsdf node")
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            age = self.get_clock().now().nanoseconds * 1e-9 - stamp
+            if age > self.max_tsdf_age_s:
+                raise Abort(ResultCode.STALE_SCENE,
+                            f"the latest TSDF is {age:.1f} s old (max_tsdf_age_s {self.max_tsdf_age_s:g}): the view "
+                            "may not show the scene as it is; check the camera and the tsdf node")
         if msg is None:
             return None
         r = int(msg.resolution)

@@ -11,10 +11,19 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
   IK         pre-grasp, grasp, lift reachable by the arm model   UNREACHABLE
   collision  open hand at pre-grasp, along the approach and at
              the grasp, against the latest TSDF                   IN_COLLISION
-  open, move to pre-grasp, approach, close, lift                  GRIPPER_FAULT / TIMEOUT / NOT_ARMED
-  verify     closing stopped on an object (gOBJ = 2) and it is
-             still held after the lift (gOBJ stays 2, fingers not
-             closed through)                                      NO_OBJECT / DROPPED
+  fresh view the latest TSDF is recent (node: max_tsdf_age_s)    STALE_SCENE
+  connect    activate; calibrate where the fingers close on
+             nothing (once per connection, or a stored value)     GRIPPER_FAULT
+  open, move to pre-grasp, approach, close, lift                  GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
+  verify     held = gOBJ 2 and the opening clearly wider than
+             the calibrated empty-closed one, at the close (else
+             the fingers open again and retreat) and once the
+             fingers are still after the lift                     NO_OBJECT / DROPPED
+
+Why a calibration: closing fully on nothing, a 2F-85's fingertips can meet and report
+an object (gOBJ 2), at an opening that varies by unit and by how the underactuated
+fingers folded (robotiq_driver/grip_calibration.py). A fixed "closed" limit of 3 mm
+once reported SUCCESS at 3.7 mm with nothing in the hand.
 """
 from __future__ import annotations
 
@@ -25,6 +34,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from robotiq_driver import grip_calibration
 from robotiq_driver.gripper_client import GripperError, GripperTimeout
 from robotiq_driver.gripper_registers import ObjectStatus
 from robotiq_driver.modbus_client import ModbusError
@@ -44,6 +54,8 @@ class ResultCode(enum.IntEnum):
     BUSY = 7
     TIMEOUT = 8
     NOT_ARMED = 9
+    ARM_FAULT = 10
+    STALE_SCENE = 11
 
 
 @dataclasses.dataclass
@@ -77,7 +89,18 @@ class ExecutionLimits:
     lift_height_m: float = 0.15
     gripper_timeout_s: float = 5.0
     arm_timeout_s: float = 20.0
-    closed_width_m: float = 0.003      # fingers this closed after the lift = object lost
+    # Held = gOBJ 2 and an opening at least this much wider than where the fingers
+    # close on nothing. 4 mm: in the Drake 2F-85 the empty-closed opening is 1.1 mm
+    # from open but 3.7 mm after a fingertip pinch lost its object (folded fingers).
+    min_object_width_m: float = 0.004
+    # Where the fingers close on nothing, if measured before (m); None: measure it on
+    # every connection (open, close on nothing at the grip's speed and force, open).
+    empty_closed_width_m: float | None = None
+
+
+class ArmUnavailable(Exception):
+    """Raised by an Arm when the arm itself is gone (its service vanished, the
+    controller dropped the connection): where the arm stopped is unknown."""
 
 
 class Arm(Protocol):
@@ -135,7 +158,12 @@ class GraspExecutor:
         self.arm = arm
         self.gripper_factory = gripper_factory  # connects lazily; a replugged gripper reconnects
         self.gripper = None
+        self.calibration = None  # grip_calibration.EmptyClosedCalibration of this connection
         self.limits = limits
+        self._stored_calibration = None  # a bad stored value stops the node at start (ValueError)
+        if limits.empty_closed_width_m is not None:
+            self._stored_calibration = grip_calibration.stored_calibration(
+                limits.empty_closed_width_m, limits.grip_speed_mps, min(limits.grip_force_n, limits.max_force_n))
         self.reachability = reachability
         self.log = log
         self.armed = False
@@ -164,7 +192,8 @@ class GraspExecutor:
         try:
             return self._execute(X_grasp, tsdf, pregrasp_distance_m)
         except Abort as abort:
-            if abort.outcome.code in (ResultCode.GRIPPER_FAULT, ResultCode.TIMEOUT, ResultCode.NOT_ARMED):
+            if abort.outcome.code in (ResultCode.GRIPPER_FAULT, ResultCode.ARM_FAULT, ResultCode.TIMEOUT,
+                                      ResultCode.NOT_ARMED):
                 self.armed = False  # any fault disarms: a person must look before the next motion
             return abort.outcome
         finally:
@@ -190,16 +219,23 @@ class GraspExecutor:
         self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
         self._move("grasp", poses["grasp"], lim.approach_speed_mps)
         closed = self._grip(gripper, 0.0, "closing")
-        if closed.object_status != ObjectStatus.CONTACT_CLOSING:
+        verdict = self._judge(gripper, closed)
+        if not verdict.held:
+            # Open before retreating: a thin pinch the check cannot tell from an empty
+            # hand must not be carried away while the answer says "nothing".
+            self._grip(gripper, 0.085, "opening")
             self._move("lift (retreat)", poses["pregrasp"], lim.approach_speed_mps)
-            raise Abort(ResultCode.NO_OBJECT, "the fingers closed on nothing: the grasp missed the object")
+            raise Abort(ResultCode.NO_OBJECT, f"the grasp missed the object: {verdict.reason}")
         self._move("lift", poses["lift"], lim.approach_speed_mps)
-        held = self._after_lift(gripper)
-        width = gripper.width_m(held)
-        if held.object_status != ObjectStatus.CONTACT_CLOSING or width <= lim.closed_width_m:
-            return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift (gOBJ={int(held.object_status)}, "
-                                               f"opening {width * 1e3:.1f} mm)")
-        return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, opening {width * 1e3:.1f} mm")
+        after = self._after_lift(gripper)
+        verdict = self._judge(gripper, after)
+        if not verdict.held:
+            return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift: {verdict.reason}")
+        return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, {verdict.reason}")
+
+    def _judge(self, gripper, state):
+        return grip_calibration.judge_grip(state.object_status, gripper.width_m(state), self.calibration,
+                                           self.limits.min_object_width_m)
 
     def _require_armed(self, action):
         if self.estopped.is_set():
@@ -219,12 +255,33 @@ class GraspExecutor:
             except (GripperError, ModbusError, OSError) as err:
                 self._drop_gripper()
                 raise Abort(ResultCode.GRIPPER_FAULT, f"gripper unavailable: {err}") from None
+            self._calibrate()
         return self.gripper
+
+    def _calibrate(self):
+        """Where this gripper's fingers close on nothing: stored, or measured now (the
+        hand is empty at the start of an execution; opening first drops anything left)."""
+        lim = self.limits
+        force = min(lim.grip_force_n, lim.max_force_n)
+        try:
+            if self._stored_calibration is not None:
+                self.calibration = self._stored_calibration
+            else:
+                self._require_armed("calibrate the gripper (it closes once on nothing)")
+                self.calibration = grip_calibration.calibrate_empty_closed(
+                    self.gripper, lim.grip_speed_mps, force, lim.gripper_timeout_s)
+        except (GripperError, ModbusError) as err:
+            self._drop_gripper()
+            code = ResultCode.TIMEOUT if isinstance(err, GripperTimeout) else ResultCode.GRIPPER_FAULT
+            raise Abort(code, f"gripper calibration failed: {err}") from None
+        self.log(f"gripper calibrated: {self.calibration.describe()}; held needs "
+                 f">= {(self.calibration.width_m + lim.min_object_width_m) * 1e3:.1f} mm with gOBJ 2")
 
     def _drop_gripper(self):
         """Forget the connection (closing it: the port is opened exclusively, so a
-        reconnect would fail while the old client holds it)."""
+        reconnect would fail while the old client holds it) and its calibration."""
         gripper, self.gripper = self.gripper, None
+        self.calibration = None
         if gripper is not None and hasattr(gripper, "close"):
             try:
                 gripper.close()
@@ -271,7 +328,11 @@ class GraspExecutor:
 
     def _move(self, name, X, speed_mps):
         self._require_armed(f"move to the {name} pose")
-        ok, message = self.arm.move_to(X, min(speed_mps, self.limits.max_speed_mps), self.limits.arm_timeout_s)
+        try:
+            ok, message = self.arm.move_to(X, min(speed_mps, self.limits.max_speed_mps), self.limits.arm_timeout_s)
+        except ArmUnavailable as err:
+            raise Abort(ResultCode.ARM_FAULT, f"arm lost during the move to the {name} pose: {err}; "
+                                              "check the arm and its driver, then arm again") from None
         if self.estopped.is_set():
             raise Abort(ResultCode.NOT_ARMED, f"emergency stop during the move to {name}")
         if not ok:

@@ -82,11 +82,17 @@ class KinematicFingers:
     motion). ``inner_width_m``: width of an object the fingers are inside of, e.g. a
     ring (stops an opening motion). None means no object. Both may be changed at any
     time, e.g. set ``object_width_m = None`` to emulate a dropped object.
+
+    ``fingers_meet_m``: the opening at which the fingertips touch each other. A real
+    2F-85 asked to close fully on nothing can stop there and report an object (gOBJ 2),
+    at an opening that differs from unit to unit; 0 (the default) closes to 0 and
+    reports "at position" (gOBJ 3).
     """
 
     object_width_m: float | None = None
     inner_width_m: float | None = None
     moving_current_a: float = 0.10
+    fingers_meet_m: float = 0.0
 
     def advance(self, dt_s, width_m, target_width_m, speed_mps, force_n) -> FingerReading:
         step = speed_mps * dt_s
@@ -95,6 +101,8 @@ class KinematicFingers:
         blocked = False
         if target_width_m < width_m:
             obj = self.object_width_m
+            if self.fingers_meet_m > 0 and (obj is None or obj < self.fingers_meet_m):
+                obj = self.fingers_meet_m  # nothing thinner fits between touching fingertips
             if obj is not None and width_m >= obj - 1e-9 and target_width_m < obj and new <= obj:
                 new, blocked = obj, True
         if target_width_m > width_m:

@@ -28,9 +28,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--activation-time-s", type=float, default=1.0, help="activation duration (default 1.0)")
     parser.add_argument("--object-width-m", type=float, help="width of an object between the fingers")
     parser.add_argument("--initial-width-m", type=float, help="finger opening at power-up (default half open)")
+    parser.add_argument("--fingers-meet-m", type=float, default=0.0,
+                        help="opening where the fingertips touch: closing on nothing stops there and reports "
+                             "an object (gOBJ 2), as some real units do (default 0: closes to 0, gOBJ 3)")
     args = parser.parse_args(argv)
     stroke = GripperScale().stroke_m
-    for name in ("object_width_m", "initial_width_m"):
+    for name in ("object_width_m", "initial_width_m", "fingers_meet_m"):
         value = getattr(args, name)
         if value is not None and not 0.0 <= value <= stroke:
             parser.error(f"--{name.replace('_', '-')} {value} is outside the 2F-85's opening 0..{stroke} m")
@@ -46,7 +49,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> None:
     args = parse_args(argv)
     emulator = GripperEmulator(
-        KinematicFingers(object_width_m=args.object_width_m),
+        KinematicFingers(object_width_m=args.object_width_m, fingers_meet_m=args.fingers_meet_m),
         activation_time_s=args.activation_time_s,
         initial_width_m=args.initial_width_m,
     )

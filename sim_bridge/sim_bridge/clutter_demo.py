@@ -233,7 +233,9 @@ def run(args) -> dict:
             if client.states is not None:
                 lifted = [n for n, l in zip(client.states.names, client.states.lifted) if l]
             success = response.success and bool(lifted)
+            pp, qq = top.pose.position, top.pose.orientation
             attempt = {"rank": rank, "score_n": float(top.gravity_rejection_score), "validness": float(top.validness),
+                       "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
                        "result": RESULT_NAMES.get(response.result_code, str(response.result_code)),
                        "message": response.message,
                        "lifted": lifted, "success": success, "wall_s": round(time.monotonic() - t0, 1)}

@@ -702,8 +702,8 @@ class SimWorld:
             self._stall_since_s = None
 
     def finger_status(self) -> tuple:
-        """(width_m, state) with state 'moving', 'at_target' or 'blocked' (stopped on
-        something that is not the hand itself, short of the target)."""
+        """(width_m, state) with state 'moving', 'at_target' or 'blocked' (stopped short
+        of the target: on an object, or with the fingers touching each other)."""
         with self._lock:
             cmd = self._finger_command
             width = self.finger_width_m()
@@ -725,12 +725,12 @@ class SimWorld:
             if close_enough and (stopped or t - cmd.t_start_s >= self.START_GRACE_S):
                 return cmd.target_width_m, "at_target"
             if stopped:
-                fingers = self.w.finger_geometries
-                on_something = any(h in fingers for h, _ in self._hand_contact_pairs())
-                # Stopped with nothing but the hand itself in the way (the pads meet when
-                # closing on nothing): the motion is over, as at the target.
-                if not on_something:
-                    return cmd.target_width_m, "at_target"
+                # Stopped short of the target: on an object, or on the other finger (the
+                # pads or fingertips meet when closing on nothing; where depends on how
+                # the underactuated fingers folded: 1.1 mm from open, 3.7 mm after a
+                # fingertip pinch lost its object). Either way the 2F-85 reports an
+                # object (gOBJ 2) at its motor position; telling them apart is the
+                # executor's job (robotiq_driver.grip_calibration).
                 self._blocked_angle = self.driver_angle_rad()
                 return width, "blocked"
             return width, "moving"
