@@ -1,16 +1,24 @@
 """The execute node as a real process: /execute_grasp over DDS, the gripper over Modbus
-RTU (the emulator executable on a pty), the arm through MoveToPose served here."""
+RTU (the emulator executable on a pty), the arm through MoveToPose served here.
+
+The emulated gripper has a 50 mm object between its fingers all the time, so these
+tests give the node a stored empty-closed calibration (it could not measure one with
+an object in the hand) and no camera (max_tsdf_age_s 0) unless a test is about that."""
 import math
+import pathlib
 import threading
 
 import pytest
-from gravgrasp_msgs.msg import Grasp, GraspArray
+from gravgrasp_msgs.msg import Grasp, GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
+from gravgrasp_detector.tsdf_node import VOLUME_QOS
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from std_srvs.srv import SetBool
 
 import time
+
+import rclpy.duration
 
 R = ExecuteGrasp.Response
 
@@ -32,7 +40,13 @@ def top_down_grasp(x=0.15, y=0.15, z=0.08) -> Grasp:
 
 
 @pytest.fixture
-def stack(ros_node, ros_process, tmp_path):
+def execute_params():
+    """Parameters of the execute node; a test overrides them by taking this fixture."""
+    return {"gripper_empty_closed_m": 0.0, "max_tsdf_age_s": 0.0}
+
+
+@pytest.fixture
+def stack(ros_node, ros_process, tmp_path, execute_params):
     link = str(tmp_path / "ttyGripper")
     emulator = ros_process("robotiq_driver", "gripper_emulator",
                            args=["--link", link, "--object-width-m", "0.05", "--activation-time-s", "0.1"])
@@ -47,9 +61,11 @@ def stack(ros_node, ros_process, tmp_path):
         response.message = "moved"
         return response
 
-    ros_node.create_service(MoveToPose, "move_to_pose", move, callback_group=ReentrantCallbackGroup())
+    arm["service"] = ros_node.create_service(MoveToPose, "move_to_pose", move, callback_group=ReentrantCallbackGroup())
+    arm["serve"] = lambda: ros_node.create_service(MoveToPose, "move_to_pose", move,
+                                                   callback_group=ReentrantCallbackGroup())
     execute = ros_process("gravgrasp_detector", "execute",
-                          params={"gripper_port": link, "check_ik": True, "gripper_timeout_s": 5.0})
+                          params={"gripper_port": link, "check_ik": True, "gripper_timeout_s": 5.0, **execute_params})
     execute.wait_for_output("execute ready", timeout_s=30)
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(ros_node)
@@ -141,3 +157,73 @@ def test_unreachable_grasp_is_refused_before_moving(stack):
     response = call(node, client, execute_request(sideways_up))
     assert response.result_code == R.UNREACHABLE and "cone" in response.message
     assert stack["arm"]["targets"] == []
+
+
+def tsdf_volume(stamp) -> TSDFVolume:
+    """An observed but empty 40^3 workspace (no surface: nothing to collide with)."""
+    msg = TSDFVolume()
+    msg.header.frame_id, msg.header.stamp = "task", stamp
+    msg.origin.orientation.w = 1.0
+    msg.voxel_size_m, msg.resolution, msg.truncation_m = 0.0075, 40, 0.03
+    msg.tsdf = [0.0] * 40 ** 3
+    msg.weights = [1.0] * 40 ** 3
+    return msg
+
+
+@pytest.mark.parametrize("execute_params", [{"gripper_empty_closed_m": 0.0, "max_tsdf_age_s": 2.0}])
+def test_no_or_a_stale_tsdf_is_refused_before_moving(stack):
+    """Fault matrix row 'TSDF stale': STALE_SCENE at once, nothing moves, still armed."""
+    node = stack["node"]
+    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
+    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    none_yet = call(node, client, execute_request(top_down_grasp()))
+    assert none_yet.result_code == R.STALE_SCENE and "no TSDF" in none_yet.message
+
+    publisher = node.create_publisher(TSDFVolume, "tsdf", VOLUME_QOS)
+    assert wait_until(lambda: publisher.get_subscription_count() > 0, 15)
+    now = node.get_clock().now()
+    old = (now - rclpy.duration.Duration(seconds=10.0)).to_msg()
+    publisher.publish(tsdf_volume(old))
+    assert wait_until(lambda: "s old" in call(node, client, execute_request(top_down_grasp())).message, 10)
+    stale = call(node, client, execute_request(top_down_grasp()))
+    assert stale.result_code == R.STALE_SCENE and "max_tsdf_age_s" in stale.message, stale.message
+    assert stack["arm"]["targets"] == []
+
+    publisher.publish(tsdf_volume(node.get_clock().now().to_msg()))  # the camera is back
+    assert wait_until(lambda: call(node, client, execute_request(top_down_grasp())).result_code == R.SUCCESS, 15)
+
+
+@pytest.mark.parametrize("execute_params", [{"gripper_empty_closed_m": 0.0, "max_tsdf_age_s": 0.0,
+                                             "arm_service": "hanging/move_to_pose"}])
+def test_arm_service_that_vanishes_mid_move_is_an_arm_fault_then_recovers(stack, ros_process):
+    """Fault matrix row 'arm service disappears mid-move': an arm adapter (its own
+    process) accepts the pre-grasp motion, hangs, and is stopped: ARM_FAULT about a
+    second after its service left the graph (not after arm_timeout_s, 20 s), disarmed.
+    With an adapter serving again and the executor re-armed, the next grasp runs."""
+    import sys
+
+    node = stack["node"]
+    adapter = ros_process("tests", "hanging_arm", cmd=[sys.executable, str(pathlib.Path(__file__).with_name("hanging_arm.py"))],
+                          remap={"move_to_pose": "hanging/move_to_pose"})
+    adapter.wait_for_output("hanging_arm ready", 30)
+    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
+    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("r", call(node, client, execute_request(top_down_grasp()), 60)))
+    worker.start()
+    adapter.wait_for_output("motion accepted", 30)
+    t0 = time.monotonic()
+    adapter.stop()  # the adapter goes away mid-move
+    worker.join(60)
+    elapsed = time.monotonic() - t0
+    r = result["r"]
+    assert r.result_code == R.ARM_FAULT and "left the ROS graph" in r.message, r.message
+    assert elapsed < 10.0, f"took {elapsed:.1f} s (arm_timeout_s is 20 s)"
+    assert call(node, client, execute_request(top_down_grasp())).result_code == R.NOT_ARMED
+
+    # An adapter serves again (this test's own, under the name the executor uses).
+    node.create_service(MoveToPose, "hanging/move_to_pose", lambda req, res: setattr(res, "success", True) or res,
+                        callback_group=ReentrantCallbackGroup())
+    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
+    again = call(node, client, execute_request(top_down_grasp()))
+    assert again.result_code == R.SUCCESS, again.message

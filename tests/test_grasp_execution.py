@@ -28,13 +28,14 @@ class ObjectAtGrasp(KinematicFingers):
     def __init__(self, size_m=0.05, fingers_meet_m=0.0):
         super().__init__(fingers_meet_m=fingers_meet_m)
         self.size_m, self.at_grasp, self.held = size_m, False, False
+        self.stuck = False  # between the fingers wherever the hand is
 
     def lose(self):
         """The object slips out of the hand."""
         self.at_grasp = self.held = False
 
     def advance(self, dt_s, width_m, target_width_m, speed_mps, force_n):
-        there = self.size_m is not None and (self.at_grasp or self.held)
+        there = self.size_m is not None and (self.at_grasp or self.held or self.stuck)
         self.object_width_m = self.size_m if there else None
         reading = super().advance(dt_s, width_m, target_width_m, speed_mps, force_n)
         if there and reading.blocked and abs(reading.width_m - self.size_m) < 1e-9:
@@ -163,12 +164,11 @@ def test_stored_calibration_is_used_and_checked(gripper_port):
 
 
 def test_calibration_refuses_a_hand_that_is_not_empty(gripper_port, fingers):
-    fingers.held = True  # something stuck between the fingers: they cannot open past it
-    fingers.at_grasp = True
+    fingers.stuck = True  # something between the fingers even at the pre-grasp pose
     ex, arm = make_executor(gripper_port)
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.GRIPPER_FAULT and "something is between" in outcome.message
-    assert arm.targets == [] and not ex.armed
+    assert len(arm.targets) == 1 and not ex.armed  # calibrated at the pre-grasp; no approach
 
 
 def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
@@ -285,3 +285,75 @@ def test_emergency_stop_aborts_and_disarms(gripper_port):
     assert outcome.code == ge.ResultCode.NOT_ARMED and "emergency stop" in outcome.message
     assert len(arm.targets) == 1 and not ex.armed
     assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
+
+
+# -- the fault matrix (README): each fault gives a typed result within its timeout, and the
+#    executor runs the next grasp once re-armed.
+
+def test_gripper_silent_during_the_close_is_a_fault_then_recovers(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    emulator = gripper_port.emulator
+    original = arm.move_to
+
+    def silence_once_closing(X, speed, timeout):
+        result = original(X, speed, timeout)
+        if len(arm.targets) == 2:  # at the grasp pose: the cable dies once the close was sent
+            def watch():
+                while emulator.command.position != 255 or not emulator.command.go:
+                    time.sleep(0.001)
+                gripper_port.respond = False
+            threading.Thread(target=watch, daemon=True).start()
+        return result
+
+    arm.move_to = silence_once_closing
+    t0 = time.monotonic()
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.GRIPPER_FAULT and "closing failed" in outcome.message, outcome.message
+    assert time.monotonic() - t0 < ex.limits.gripper_timeout_s + 2.0
+    assert not ex.armed and ex.gripper is None
+    gripper_port.respond = True
+    arm.move_to = original
+    ex.arm_motion(True)
+    assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS
+
+
+def test_gripper_silent_during_the_lift_is_a_fault_then_recovers(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def silence_on_lift(X, speed, timeout):
+        if len(arm.targets) == 2:
+            gripper_port.respond = False
+        return original(X, speed, timeout)
+
+    arm.move_to = silence_on_lift
+    t0 = time.monotonic()
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.GRIPPER_FAULT and "stopped answering" in outcome.message, outcome.message
+    assert time.monotonic() - t0 < ex.limits.gripper_timeout_s + 2.0
+    assert not ex.armed
+    gripper_port.respond = True
+    arm.move_to = original
+    ex.arm_motion(True)
+    # Reconnected, recalibrated (opening first lets the lifted block go), then a new grasp.
+    again = ex.execute(grasp())
+    assert again.code == ge.ResultCode.SUCCESS, again.message
+    assert ex.calibration.width_m == pytest.approx(0.0, abs=0.4e-3)
+
+
+def test_emergency_stop_during_the_approach_then_rearm_recovers(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def estop_during_approach(X, speed, timeout):
+        if len(arm.targets) == 1:
+            ex.estop()
+        return original(X, speed, timeout)
+
+    arm.move_to = estop_during_approach
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NOT_ARMED and "emergency stop during the move to grasp" in outcome.message
+    assert len(arm.targets) == 2 and not ex.armed
+    arm.move_to = original
+    ex.arm_motion(True)
+    assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS

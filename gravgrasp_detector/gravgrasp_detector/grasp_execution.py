@@ -12,9 +12,9 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
   collision  open hand at pre-grasp, along the approach and at
              the grasp, against the latest TSDF                   IN_COLLISION
   fresh view the latest TSDF is recent (node: max_tsdf_age_s)    STALE_SCENE
-  connect    activate; calibrate where the fingers close on
-             nothing (once per connection, or a stored value)     GRIPPER_FAULT
-  open, move to pre-grasp, approach, close, lift                  GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
+  connect    activate                                            GRIPPER_FAULT
+  open, move to pre-grasp, calibrate there once per connection
+  (close on nothing, or a stored value), approach, close, lift    GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
   verify     held = gOBJ 2 and the opening clearly wider than
              the calibrated empty-closed one, at the close (else
              the fingers open again and retreat) and once the
@@ -217,6 +217,8 @@ class GraspExecutor:
         gripper = self._gripper()
         self._grip(gripper, 0.085, "opening")
         self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
+        if self.calibration is None:  # once per connection
+            self._calibrate()
         self._move("grasp", poses["grasp"], lim.approach_speed_mps)
         closed = self._grip(gripper, 0.0, "closing")
         verdict = self._judge(gripper, closed)
@@ -255,12 +257,13 @@ class GraspExecutor:
             except (GripperError, ModbusError, OSError) as err:
                 self._drop_gripper()
                 raise Abort(ResultCode.GRIPPER_FAULT, f"gripper unavailable: {err}") from None
-            self._calibrate()
         return self.gripper
 
     def _calibrate(self):
-        """Where this gripper's fingers close on nothing: stored, or measured now (the
-        hand is empty at the start of an execution; opening first drops anything left)."""
+        """Where this gripper's fingers close on nothing: stored, or measured now. Run at
+        the pre-grasp pose, where the open hand was checked clear of the TSDF, so nothing
+        should be between the fingers (after a fault the hand may still surround an
+        object at the last grasp pose: calibrating there would refuse)."""
         lim = self.limits
         force = min(lim.grip_force_n, lim.max_force_n)
         try:
