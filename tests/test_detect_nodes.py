@@ -57,7 +57,7 @@ def test_bag_replay_through_tsdf_and_detect(ros_node, ros_process, model_path):
     volumes = collect(ros_node, TSDFVolumeMsg, "/tsdf", VOLUME_QOS)
     grasps = collect(ros_node, GraspArray, "/grasps")
     markers = collect(ros_node, MarkerArray, "/grasp_markers")
-    detect.wait_for_output(r"model .*untrained\.pt", timeout_s=30)
+    detect.wait_for_output(r"model: .*untrained\.pt", timeout_s=30)
 
     player = BagPlayer(ros_node, BAG)
     assert player.wait_for_subscribers(list(REMAP.values()), timeout_s=20), "tsdf node did not subscribe"

@@ -73,3 +73,38 @@ def test_volume_mismatch_says_what_to_change(tmp_path):
     assert "truncation 0.04 m (model: 0.03 m)" in message
     assert "resolution" not in message.split(";")[0]  # only what differs is listed
     assert "size_m=0.3" in message
+
+
+def test_paths_are_stored_relative_to_the_project_or_not_at_all(tmp_path, monkeypatch):
+    """Model files travel: no absolute path of the training machine goes in, and files
+    written before that rule (the shipped models carry `cwd` and an absolute `data`)
+    are made portable when loaded."""
+    monkeypatch.chdir(tmp_path)
+    summary = {"data": str(tmp_path / "out" / "scenes"), "cwd": str(tmp_path), "argv": ["--data", "/elsewhere/x"],
+               "command": f"train --data {tmp_path}/out/scenes", "config": {"data": "out/scenes"}}
+    model_file.save_model(tmp_path / "m.pt", networks.GraspNet(), TSDFVolume(), training_data=summary)
+    stored = torch.load(tmp_path / "m.pt", weights_only=True)["metadata"]["training_data"]
+    assert stored == {"data": "out/scenes", "argv": ["--data", None], "command": "train --data out/scenes",
+                      "config": {"data": "out/scenes"}}
+
+    # An old file, as `train` wrote it before: absolute paths under its recorded cwd.
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    payload["metadata"]["training_data"] = {"data": "/work/main/out/scenes_v1", "cwd": "/work/main", "epochs": 20}
+    torch.save(payload, tmp_path / "old.pt")
+    _, meta = model_file.load_model(tmp_path / "old.pt")
+    assert meta["training_data"] == {"data": "out/scenes_v1", "epochs": 20}
+    assert "/work" not in repr(meta)
+
+
+def test_detect_startup_says_one_short_fact_per_line():
+    import pathlib
+
+    from gravgrasp_detector.detect_node import startup_lines
+
+    shipped = pathlib.Path(__file__).resolve().parents[1] / "models" / "gravgrasp.pt"
+    _, meta = model_file.load_model(shipped)
+    lines = startup_lines(str(shipped), meta, "bf16", 1)
+    assert lines[0] == "model: models/gravgrasp.pt" or lines[0] == f"model: {shipped}"
+    assert any(line.startswith("model trained: ") and "scenes from out/scenes_v1" in line for line in lines)
+    assert all(len(line) <= 80 and "{" not in line for line in lines), lines
+    assert not any("/work/" in line for line in lines[1:]), lines

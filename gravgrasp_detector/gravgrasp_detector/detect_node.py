@@ -80,6 +80,26 @@ def _quat_matrix(q):
     return Rotation.from_quat(quat).as_matrix()
 
 
+def startup_lines(model_path, metadata, precision, threads):
+    """What the node tells a user at start-up: one short line per fact (the model's
+    whole training summary is in its card, models/<name>.md)."""
+    root = os.environ.get("GRAVGRASP_ROOT", os.getcwd())
+    shown = os.path.relpath(model_path, root) if model_path.startswith(root.rstrip("/") + "/") else model_path
+    net, grid, td = metadata["network"], metadata["tsdf"], metadata.get("training_data") or {}
+    lines = [f"model: {shown}",
+             f"model input: {grid['resolution']}^3 TSDF, {grid['voxel_size_m'] * 1e3:g} mm voxels",
+             f"model output: {td.get('target', 'gravity-score')}, rotation {net['rotation_representation']}"]
+    if "scenes_train" in td:
+        lines.append(f"model trained: {td['scenes_train']} + {td.get('scenes_val', 0)} scenes"
+                     + (f" from {td['data']}" if td.get("data") else "")
+                     + (f", {td['epochs']} epochs" if "epochs" in td else "")
+                     + (f", {metadata['created_utc'][:10]}" if metadata.get("created_utc") else ""))
+    elif td.get("note"):
+        lines.append(f"model note: {td['note']}")
+    lines.append(f"precision: {precision}, {threads} torch thread{'s' if threads != 1 else ''}")
+    return lines
+
+
 def _float(description, low, high, read_only=False):
     return ParameterDescriptor(
         description=description, read_only=read_only,
@@ -141,12 +161,8 @@ class DetectNode(Node):
         self._last_latency_log = -float("inf")
         self._worker = threading.Thread(target=self._run, name="detect", daemon=True)
         self._worker.start()
-        meta = self.metadata
-        self.get_logger().info(
-            f"model {self.model_path}: {meta['network']['rotation_representation']}, "
-            f"{meta['tsdf']['resolution']}^3 at {meta['tsdf']['voxel_size_m']:.4g} m, "
-            f"trained on {meta.get('training_data') or 'unspecified data'}; precision {self.precision}, "
-            f"{threads} thread(s)")
+        for line in startup_lines(self.model_path, self.metadata, self.precision, threads):
+            self.get_logger().info(line)
 
     def _on_volume(self, msg):
         with self._wakeup:

@@ -11,10 +11,18 @@ code runs on load):
     state_dict: GraspNet weights.
 A volume whose size, resolution, truncation or value convention differs from the
 metadata is rejected by `check_volume` with a message that says what to change.
+
+Paths in training_data are relative to the project the model was trained in (the
+working directory of `train`), or left out: a model file travels to other machines,
+and the trainer's absolute paths say nothing there but where someone's home was.
+Files written before this rule (the shipped models carry `cwd` and an absolute `data`)
+are made portable when loaded (`portable_training_data`), so nothing downstream sees
+those paths.
 """
 
 import datetime
 import os
+import posixpath
 
 import torch
 
@@ -39,6 +47,33 @@ def tsdf_metadata(volume):
     }
 
 
+def portable_training_data(training_data, root=None):
+    """A copy of a training summary with every absolute path made relative to `root`
+    (default: the `cwd` it recorded) or, outside it, dropped (None); `cwd` itself goes."""
+    data = dict(training_data or {})
+    root = root or data.get("cwd")
+    data.pop("cwd", None)
+
+    def portable(value):
+        if isinstance(value, dict):
+            return {k: portable(v) for k, v in value.items()}
+        if isinstance(value, list):
+            return [portable(v) for v in value]
+        if not isinstance(value, str):
+            return value
+        if posixpath.isabs(value):
+            if root and posixpath.isabs(root):
+                rel = posixpath.relpath(posixpath.normpath(value), posixpath.normpath(root))
+                if not rel.startswith(".."):
+                    return rel
+            return None
+        if root and posixpath.isabs(root):  # paths inside a recorded command line
+            value = value.replace(posixpath.normpath(root) + "/", "")
+        return value
+
+    return portable(data)
+
+
 def save_model(path, model, tsdf_volume_or_metadata, training_data=None):
     """Write `model` (networks.GraspNet) atomically to `path` and return its metadata."""
     tsdf_meta = (
@@ -54,7 +89,7 @@ def save_model(path, model, tsdf_volume_or_metadata, training_data=None):
         "architecture": networks.ARCHITECTURE,
         "network": model.config(),
         "tsdf": tsdf_meta,
-        "training_data": dict(training_data or {}),
+        "training_data": portable_training_data(training_data, os.getcwd()),
         "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "torch_version": str(torch.__version__),
     }
@@ -97,6 +132,7 @@ def load_model(path):
         raise ModelFileError(
             f"model file {path} lacks metadata (architecture, network, tsdf): re-export it with save_model"
         )
+    metadata = dict(metadata, training_data=portable_training_data(metadata.get("training_data")))
     if metadata["architecture"] != networks.ARCHITECTURE:
         raise ModelFileError(
             f"model file {path} is architecture {metadata['architecture']!r}, this package "

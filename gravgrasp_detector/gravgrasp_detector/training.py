@@ -350,12 +350,14 @@ def train(config: TrainConfig, progress=True, argv=None):
 
     argv = list(sys.argv[1:] if argv is None else argv)
     summary = {
-        "data": os.path.abspath(config.data), "scenes_train": len(train_scenes), "scenes_val": len(val_scenes),
+        # relative to the working directory (the project), as model files store paths
+        "data": os.path.relpath(os.path.abspath(config.data)), "scenes_train": len(train_scenes),
+        "scenes_val": len(val_scenes),
         "labels_train": int(len(all_scores)), "target": config.target, "subset": config.subset,
         "nominal_mass_kg": config.nominal_mass_kg, "epochs": config.epochs, "seed": config.seed,
         "validation": history[-1] if history else {},
         "command": "ros2 run gravgrasp_detector train " + " ".join(argv),
-        "argv": argv, "cwd": os.getcwd(),
+        "argv": argv,
         "config": dataclasses.asdict(config),
         "train_wall_s": history[-1]["wall_s"] if history else 0.0,
         "machine": {"cpu": _cpu_model(), "cores": os.cpu_count(), "torch_threads": config.threads,
