@@ -18,6 +18,7 @@ help:
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 8 scenes x 0.1/0.5/1.5 kg, all methods (~2 h; nohup; resumable)"
+	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of the committed per-object grasp tables"
 	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
@@ -58,6 +59,13 @@ bench-sim: setup
 
 bench-gripper: setup
 	@$(ROS) ros2 run robotiq_driver bench_gripper
+
+# Stability: 10 min of 30 Hz depth through tsdf + detect with /execute_grasp requests
+# against the sim bridge; last line soak_ok=1 (CI runs 60 s: tests/test_soak.py).
+.PHONY: soak
+SOAK_S ?= 600
+soak: setup
+	@$(ROS) ros2 run sim_bridge soak --duration-s $(SOAK_S) --out out/soak
 
 # Clutter removal against object weight (issue 8); both resume in their --out directory.
 .PHONY: benchmark benchmark-quick

@@ -25,6 +25,7 @@ setup(
             "demo = sim_bridge.clutter_demo:main",
             "benchmark = sim_bridge.clutter_benchmark:main",
             "qualitative = sim_bridge.qualitative:main",
+            "soak = sim_bridge.soak:main",
         ],
     },
 )

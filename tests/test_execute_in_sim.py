@@ -8,6 +8,7 @@ the last test runs the whole chain with the shipped model: depth -> tsdf -> dete
 /grasps -> /execute_grasp by index -> lifted."""
 import math
 import pathlib
+import re
 import threading
 import time
 
@@ -119,6 +120,12 @@ def test_refusals_then_a_successful_lift(world):
     assert first.result_code == R.SUCCESS, first.message
     assert wait_until(lambda: seen["states"].lifted[0], 10), "object not lifted in the ground truth"
     assert seen["states"].height_above_table_m[0] > 0.08
+    # Calibrated over Modbus against the simulated fingers: they meet at ~1.1 mm and the
+    # emulated 2F-85 reports that as an object (gOBJ 2), as a real one can.
+    calibration = re.search(r"fingers close on nothing at ([0-9.]+) mm \(measured on connection, gOBJ (\d)\)",
+                            world["procs"][-1].output())
+    assert calibration, "no calibration in the execute log"
+    assert float(calibration.group(1)) < 2.5 and calibration.group(2) == "2"
 
 
 def test_gripper_fault_mid_grasp_and_emergency_stop(world):
@@ -188,3 +195,20 @@ def test_top_grasp_from_the_detector_lifts_the_box(world):
                   ExecuteGrasp.Request(use_index=True, grasp_index=0), 240)
     assert result.result_code == R.SUCCESS, f"top grasp {grasps[0].gravity_rejection_score:.1f} N: {result.message}"
     assert wait_until(lambda: seen["states"].lifted[0], 10), "object not lifted in the ground truth"
+
+
+def test_closing_beside_the_box_is_no_object_and_the_hand_opens(world):
+    """A miss in Drake over DDS and Modbus: the fingers meet (gOBJ 2 at ~1 mm), the
+    calibrated verdict is NO_OBJECT, and the box stays on the table."""
+    node, seen, call = world["node"], world["seen"], world["spin"].call
+    t_reset = reload_scene(world)
+    assert wait_until(lambda: stamp_ns(seen["tsdf"]) > t_reset + 1e9 and not seen["states"].lifted[0], 30)
+    obj = seen["states"].poses[0].position
+    p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
+    beside = p + [0.0, 0.0, 0.0]
+    beside[1] = obj.y - 0.12 if obj.y > 0.15 else obj.y + 0.12  # 12 cm to the side, over bare table
+    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    miss = call(node.create_client(ExecuteGrasp, "execute_grasp"), request(beside, q), 240)
+    assert miss.result_code == R.NO_OBJECT, miss.message
+    assert "where they close on nothing" in miss.message and "gOBJ 2" in miss.message
+    assert not seen["states"].in_hand[0] and seen["states"].height_above_table_m[0] < 0.01

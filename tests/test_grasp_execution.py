@@ -87,6 +87,16 @@ def grasp(x=0.15, y=0.15, z=0.08, q=DOWN):
     return ge.pose_to_matrix([x, y, z], q)
 
 
+# The moves of an execution of grasp(): calibration pose (first execution of a
+# connection: pre-grasp + 15 cm), pre-grasp, grasp, lift, told apart by height.
+def is_grasp(X):
+    return abs(X[2, 3] - 0.08) < 1e-6
+
+
+def is_lift(X):
+    return abs(X[2, 3] - 0.23) < 1e-6
+
+
 def test_malformed_poses_are_invalid_requests():
     for p, q in [([np.nan, 0, 0], DOWN), ([0, 0, 0], [0, 0, 0, 2.0]), ([0, 0, np.inf], DOWN)]:
         with pytest.raises(ge.Abort) as err:
@@ -99,8 +109,11 @@ def test_successful_grasp_moves_through_pregrasp_grasp_lift(gripper_port):
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.SUCCESS, outcome.message
     z = [round(X[2, 3], 3) for X, _ in arm.targets]
-    assert z == [0.13, 0.08, 0.23]  # pre-grasp 5 cm back along the approach, grasp, lift 15 cm
-    assert arm.targets[1][1] == pytest.approx(0.05)  # approach at the approach speed
+    # calibration 15 cm above the pre-grasp, pre-grasp 5 cm back along the approach, grasp, lift 15 cm
+    assert z == [0.28, 0.13, 0.08, 0.23]
+    assert arm.targets[2][1] == pytest.approx(0.05)  # approach at the approach speed
+    assert ex.execute(grasp()).success
+    assert [round(X[2, 3], 3) for X, _ in arm.targets[4:]] == [0.13, 0.08, 0.23]  # calibrated once per connection
     assert "held, opening 50.0 mm" in outcome.message
 
 
@@ -168,7 +181,7 @@ def test_calibration_refuses_a_hand_that_is_not_empty(gripper_port, fingers):
     ex, arm = make_executor(gripper_port)
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.GRIPPER_FAULT and "something is between" in outcome.message
-    assert len(arm.targets) == 1 and not ex.armed  # calibrated at the pre-grasp; no approach
+    assert len(arm.targets) == 1 and not ex.armed  # only the move to the calibration pose
 
 
 def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
@@ -176,7 +189,7 @@ def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
     original = arm.move_to
 
     def drop_on_lift(X, speed, timeout):
-        if len(arm.targets) == 2:  # the third move is the lift: the object slips out
+        if is_lift(X):  # the object slips out
             fingers.lose()
             gripper_port.emulator.advance()
         return original(X, speed, timeout)
@@ -195,7 +208,7 @@ def test_object_that_shifts_in_the_hand_during_the_lift_is_held(gripper_port, fi
     original = arm.move_to
 
     def shift_on_lift(X, speed, timeout):
-        if len(arm.targets) == 2:  # the lift: the object slides 5 mm deeper between the fingers
+        if is_lift(X):  # the object slides 5 mm deeper between the fingers
             fingers.size_m = 0.045
             gripper_port.emulator.advance()
         return original(X, speed, timeout)
@@ -262,7 +275,7 @@ def test_gripper_fault_mid_grasp_disarms(gripper_port):
     original = arm.move_to
 
     def fault_at_grasp(X, speed, timeout):
-        if len(arm.targets) == 1:
+        if is_grasp(X):
             gripper_port.emulator.inject_fault(0x0E)  # overcurrent, during the approach
         return original(X, speed, timeout)
 
@@ -297,7 +310,7 @@ def test_gripper_silent_during_the_close_is_a_fault_then_recovers(gripper_port):
 
     def silence_once_closing(X, speed, timeout):
         result = original(X, speed, timeout)
-        if len(arm.targets) == 2:  # at the grasp pose: the cable dies once the close was sent
+        if is_grasp(X):  # at the grasp pose: the cable dies once the close was sent
             def watch():
                 while emulator.command.position != 255 or not emulator.command.go:
                     time.sleep(0.001)
@@ -322,7 +335,7 @@ def test_gripper_silent_during_the_lift_is_a_fault_then_recovers(gripper_port):
     original = arm.move_to
 
     def silence_on_lift(X, speed, timeout):
-        if len(arm.targets) == 2:
+        if is_lift(X):
             gripper_port.respond = False
         return original(X, speed, timeout)
 
@@ -346,14 +359,14 @@ def test_emergency_stop_during_the_approach_then_rearm_recovers(gripper_port):
     original = arm.move_to
 
     def estop_during_approach(X, speed, timeout):
-        if len(arm.targets) == 1:
+        if is_grasp(X):
             ex.estop()
         return original(X, speed, timeout)
 
     arm.move_to = estop_during_approach
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.NOT_ARMED and "emergency stop during the move to grasp" in outcome.message
-    assert len(arm.targets) == 2 and not ex.armed
+    assert is_grasp(arm.targets[-1][0]) and not ex.armed
     arm.move_to = original
     ex.arm_motion(True)
     assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS

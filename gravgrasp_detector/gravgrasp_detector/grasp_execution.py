@@ -13,8 +13,9 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
              the grasp, against the latest TSDF                   IN_COLLISION
   fresh view the latest TSDF is recent (node: max_tsdf_age_s)    STALE_SCENE
   connect    activate                                            GRIPPER_FAULT
-  open, move to pre-grasp, calibrate there once per connection
-  (close on nothing, or a stored value), approach, close, lift    GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
+  open; once per connection: move to the pre-grasp raised by the
+  lift height and calibrate there (close on nothing), or take a
+  stored value; pre-grasp, approach, close, lift                  GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
   verify     held = gOBJ 2 and the opening clearly wider than
              the calibrated empty-closed one, at the close (else
              the fingers open again and retreat) and once the
@@ -204,6 +205,13 @@ class GraspExecutor:
     def _execute(self, X_grasp, tsdf, pregrasp_distance_m) -> Outcome:
         lim = self.limits
         poses = plan_poses(X_grasp, pregrasp_distance_m or lim.pregrasp_distance_m, lim.lift_height_m)
+        if self.calibration is None and self._stored_calibration is None:
+            # Measure where the fingers close on nothing well clear of the scene: the
+            # pre-grasp raised by the lift height (at the pre-grasp itself the top of a
+            # tall object can already be between the fingers).
+            X_cal = poses["pregrasp"].copy()
+            X_cal[2, 3] += lim.lift_height_m
+            poses = {"calibrate": X_cal, **poses}
         check_limits(poses, lim)
         if self.reachability is not None:
             reach = self.reachability.check(poses)
@@ -216,9 +224,12 @@ class GraspExecutor:
         self._require_armed("open the gripper")
         gripper = self._gripper()
         self._grip(gripper, 0.085, "opening")
-        self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
-        if self.calibration is None:  # once per connection
+        if "calibrate" in poses:  # once per connection
+            self._move("calibration", poses["calibrate"], lim.max_speed_mps)
             self._calibrate()
+        elif self.calibration is None:
+            self._calibrate()  # the stored value
+        self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
         self._move("grasp", poses["grasp"], lim.approach_speed_mps)
         closed = self._grip(gripper, 0.0, "closing")
         verdict = self._judge(gripper, closed)
@@ -260,10 +271,10 @@ class GraspExecutor:
         return self.gripper
 
     def _calibrate(self):
-        """Where this gripper's fingers close on nothing: stored, or measured now. Run at
-        the pre-grasp pose, where the open hand was checked clear of the TSDF, so nothing
-        should be between the fingers (after a fault the hand may still surround an
-        object at the last grasp pose: calibrating there would refuse)."""
+        """Where this gripper's fingers close on nothing: stored, or measured now, at the
+        calibration pose (pre-grasp + lift height: nothing should be between the fingers
+        there; after a fault the hand may still surround an object at the last grasp
+        pose, so calibrating where the hand happens to be would refuse)."""
         lim = self.limits
         force = min(lim.grip_force_n, lim.max_force_n)
         try:
@@ -275,6 +286,9 @@ class GraspExecutor:
                     self.gripper, lim.grip_speed_mps, force, lim.gripper_timeout_s)
         except (GripperError, ModbusError) as err:
             self._drop_gripper()
+            if self.estopped.is_set():  # estop() stopped the fingers mid-calibration
+                raise Abort(ResultCode.NOT_ARMED, "emergency stop during the gripper calibration: fingers halted; "
+                                                  "release it and arm again (service ~/arm)") from None
             code = ResultCode.TIMEOUT if isinstance(err, GripperTimeout) else ResultCode.GRIPPER_FAULT
             raise Abort(code, f"gripper calibration failed: {err}") from None
         self.log(f"gripper calibrated: {self.calibration.describe()}; held needs "

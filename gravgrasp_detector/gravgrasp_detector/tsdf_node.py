@@ -132,6 +132,7 @@ class TSDFNode(Node):
         self.dirty = False
         self.last_stamp = None
         self.static_T = None
+        self.frames_received = self.frames_fused = self.volumes_published = 0
         # Inputs default to sensor-data QoS (best effort, as camera drivers publish);
         # qos_overrides.<topic>.subscription.reliability:=reliable for reliable sources.
         overridable = QoSOverridingOptions.with_default_policies()
@@ -152,6 +153,7 @@ class TSDFNode(Node):
         self.create_service(SetBool, "~/set_integrating", self._on_set_integrating)
         self.create_timer(1.0 / rate, self._publish)
         self.create_timer(0.1, self._expire_pending)
+        self.create_timer(10.0, self._log_counts)
         self.get_logger().info(
             f"TSDF {resolution}^3 over {size_m} m in '{self.frame_id}', camera pose from {self.pose_source}; "
             f"depth on {self.resolve_topic_name('depth/image')}")
@@ -211,6 +213,7 @@ class TSDFNode(Node):
             return
         self.problems.clear("encoding", "malformed_image")
         self.get_logger().debug(f"depth {_stamp_s(msg.header.stamp):.3f} received, {len(self.pending)} pending")
+        self.frames_received += 1
         self.pending.append((time.monotonic(), msg.header, depth))
         self._integrate_pending()
 
@@ -252,6 +255,7 @@ class TSDFNode(Node):
                 self.problems.report(type(e).__name__, f"could not fuse a depth image: {type(e).__name__}: {e}")
                 continue
             self.problems.clear()  # a fused frame: every input is fine again
+            self.frames_fused += 1
             self.dirty = True
             self.last_stamp = header.stamp
             self.get_logger().debug(f"depth {_stamp_s(header.stamp):.3f} fused ({self.volume.frames_integrated} frames)")
@@ -290,6 +294,15 @@ class TSDFNode(Node):
         msg.tsdf = array.array("f", to_network_grid(tsdf, weights).tobytes())
         msg.weights = array.array("f", weights.tobytes())
         self.publisher.publish(msg)
+        self.volumes_published += 1
+
+    def _log_counts(self):
+        """Every 10 s while frames arrive: how many were fused and published (the rest
+        waited too long for CameraInfo/pose or were bad; see the other log lines)."""
+        if self.frames_received != getattr(self, "_logged_received", 0):
+            self._logged_received = self.frames_received
+            self.get_logger().info(f"frames: {self.frames_received} received, {self.frames_fused} fused; "
+                                   f"{self.volumes_published} volumes published")
 
     def _on_reset(self, request, response):
         self.volume.reset()

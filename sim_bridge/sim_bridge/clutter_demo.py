@@ -5,9 +5,30 @@ execute) as separate processes talking over DDS and Modbus RTU, exactly as on a
 robot, then repeats: fresh TSDF of the scene -> top grasp from /grasps ->
 /execute_grasp -> a lifted object is taken out of the scene (as the paper's
 clutter-removal protocol does). A round ends when the table is clear, after 2
-consecutive failures, or when no grasp is detected. Prints one line per attempt and
-`SR=... CR=...`, and writes a JSON report and a PNG of the scene with its grasps.
-All processes stop on exit and on Ctrl-C.
+consecutive failures, when no grasp is detected, or when the executor reports a
+fault (it disarms; a person would look).
+
+Gravity-aware: every object weighs `--mass-kg` (1 kg by default), and the detector
+only returns grasps scored at least `--safety` x its weight; each attempt prints the
+grasp's score against the object's weight and the grasp mode the contacts show
+(power: palm or proximal links touch the object; precision: fingertips only).
+
+Two judges: the executor's verdict (gOBJ against its empty-closed calibration) and
+the sim's ground truth (the object is in the hand, 1 cm or more above the table, a
+second after the answer). They must agree; a disagreement is printed as an ERROR,
+listed in the report, and makes the command exit 1.
+
+Prints one line per attempt and `SR=... CR=...`; writes `report.json`, a PNG per
+attempt (the depth image with the grasps) and `summary.png` (one page). All
+processes stop on exit and on Ctrl-C.
+
+Reproducibility: scene, detection and the Drake physics are deterministic for a
+seed, and the sim only steps while something moves. What remains is timing between
+processes: a command (a Modbus close, an arm motion) reaches the sim a few ms of wall
+time after the previous one ended, and while the sim is still stepping (a grip
+building up, an object settling) that lag becomes simulated time. Marginal grasps (a
+fingertip pinch) can end differently run to run; the report lists every attempt so
+runs can be compared.
 """
 from __future__ import annotations
 
@@ -34,6 +55,10 @@ from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
 
 REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Response.UNREACHABLE)
+# The executor disarms on these: a robot would wait for a person, so the round ends.
+FAULTS = (ExecuteGrasp.Response.GRIPPER_FAULT, ExecuteGrasp.Response.ARM_FAULT, ExecuteGrasp.Response.TIMEOUT,
+          ExecuteGrasp.Response.NOT_ARMED, ExecuteGrasp.Response.STALE_SCENE)
+G_MPS2 = 9.81
 
 
 RESULT_NAMES = {getattr(ExecuteGrasp.Response, n): n for n in dir(ExecuteGrasp.Response)
@@ -97,7 +122,8 @@ class Client:
         self.node = rclpy.create_node("clutter_demo")
         self.grasps, self.states = None, None
         self.node.create_subscription(GraspArray, "grasps", self._on_grasps, 10)
-        self.node.create_subscription(ObjectStates, "object_states", lambda m: setattr(self, "states", m), 10)
+        self.modes_seen = {}  # object -> grasp mode the sim reported while in the hand (since reset)
+        self.node.create_subscription(ObjectStates, "object_states", self._on_states, 10)
         self.depth, self.info, self.camera_pose = None, None, None
         self.node.create_subscription(Image, "depth/image", lambda m: setattr(self, "depth", m), qos_profile_sensor_data)
         self.node.create_subscription(CameraInfo, "depth/camera_info", lambda m: setattr(self, "info", m),
@@ -108,6 +134,12 @@ class Client:
         self.executor.add_node(self.node)
         threading.Thread(target=self.executor.spin, daemon=True).start()
         self.grasps_event = threading.Event()
+
+    def _on_states(self, msg):
+        self.states = msg
+        for name, mode in zip(msg.names, msg.grasp_mode):
+            if mode:
+                self.modes_seen[name] = mode
 
     def _on_grasps(self, msg):
         self.grasps = msg
@@ -123,6 +155,18 @@ class Client:
         if not done.wait(timeout_s):
             raise TimeoutError(f"service {name} did not answer in {timeout_s:.0f} s")
         return future.result()
+
+    def states_after(self, delay_s, timeout_s=30.0):
+        """The first object states read `delay_s` of wall time from now or later (a
+        dropped object has fallen by then: the sim steps while it moves)."""
+        t_min = self.node.get_clock().now().nanoseconds + delay_s * 1e9
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            s = self.states
+            if s is not None and s.header.stamp.sec * 10**9 + s.header.stamp.nanosec >= t_min:
+                return s
+            time.sleep(0.05)
+        return self.states
 
     def fresh_grasps(self, timeout_s):
         """Reset the TSDF, then wait for grasps detected in volumes integrated after it."""
@@ -175,13 +219,64 @@ def save_scene_png(client, grasps, path):
     return True
 
 
+def nearest_object(states, p):
+    """Index of the object whose origin is nearest to point p (task frame)."""
+    d = [np.linalg.norm([q.position.x - p[0], q.position.y - p[1], q.position.z - p[2]]) for q in states.poses]
+    return int(np.argmin(d)) if d else None
+
+
+def judge(states):
+    """(ground-truth success, lifted names, mode) from the states after the answer."""
+    lifted = [n for n, l in zip(states.names, states.lifted) if l] if states is not None else []
+    modes = dict(zip(states.names, states.grasp_mode)) if states is not None else {}
+    mode = next((modes.get(n) for n in lifted if modes.get(n)), "")
+    return bool(lifted), lifted, mode
+
+
+def save_summary_png(report, path):
+    """One page: each attempt's executed score against the object's weight, with every
+    detected grasp's score behind it; colour = outcome, label = mode."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    attempts = report["attempts"]
+    fig, ax = plt.subplots(figsize=(8.27, 5.0), dpi=100)
+    for k, a in enumerate(attempts, 1):
+        ax.scatter([k] * len(a["all_scores_n"]), a["all_scores_n"], s=12, color="0.75", zorder=1)
+        colour = "tab:green" if a["success"] else "tab:red"
+        ax.scatter([k], [a["score_n"]], s=90, color=colour, edgecolors="black", zorder=3)
+        ax.annotate(f"{a['mode'] or '-'}\n{a['result']}", (k, a["score_n"]), textcoords="offset points",
+                    xytext=(10, -4), fontsize=8)
+    weight = report["object_mass_kg"] * G_MPS2
+    ax.axhline(weight, color="tab:blue", linestyle="--", label=f"object weight {weight:.1f} N")
+    ax.axhline(report["min_score_n"], color="tab:orange", linestyle=":",
+               label=f"min score {report['min_score_n']:.1f} N ({report['safety']:g} x weight)")
+    ax.set_xticks(range(1, len(attempts) + 1))
+    ax.set_xlim(0.5, max(len(attempts), 1) + 1.0)
+    ax.set_xlabel("attempt")
+    ax.set_ylabel("gravity-rejection score [N]")
+    ax.set_title(f"make demo, seed {report['seed']}: SR {report['SR']:.2f}, CR {report['CR']:.2f} "
+                 f"({report['n_objects']} objects of {report['object_mass_kg']:g} kg); grey = all detected grasps",
+                 fontsize=9)
+    ax.legend(loc="upper right", fontsize=8)
+    if report.get("errors"):
+        fig.text(0.01, 0.01, "ERRORS: " + "; ".join(report["errors"])[:200], color="red", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def run(args) -> dict:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     link = os.path.join(tempfile.mkdtemp(prefix="gravgrasp-demo-"), "ttyGripper")
     procs = Processes(out)
+    min_score_n = args.min_score_n if args.min_score_n is not None else args.safety * args.mass_kg * G_MPS2
     report = {"seed": args.seed, "n_objects": args.objects, "arrangement": args.arrangement,
-              "object_mass_kg": args.mass_kg, "model": args.model, "attempts": []}
+              "object_mass_kg": args.mass_kg, "safety": args.safety, "min_score_n": min_score_n,
+              "model": args.model, "attempts": [], "errors": []}
+    t_start = time.monotonic()
     try:
         procs.start("sim", [installed("sim_bridge", "sim"), "--ros-args",
                             "-p", f"seed:={args.seed}", "-p", f"n_objects:={args.objects}",
@@ -190,14 +285,17 @@ def run(args) -> dict:
         procs.wait_for("sim", "sim ready", 120)
         procs.start("stack", [installed("gravgrasp_detector", "stack"), "--ros-args",
                               "-p", f"detect:model_path:={args.model}", "-p", f"execute:gripper_port:={link}",
-                              "-p", f"detect:min_score_n:={args.min_score_n}",
+                              "-p", f"detect:min_score_n:={min_score_n}",
                               "-p", f"detect:validness_threshold:={args.validness_threshold}",
-                              # the sim runs slower than real time while it holds an object
-                              "-p", "execute:arm_timeout_s:=120.0"])
+                              # The sim runs slower than real time (0.3-0.6x while it holds an
+                              # object, less on a busy machine): wall-clock limits sized for it.
+                              "-p", "execute:arm_timeout_s:=120.0", "-p", "execute:gripper_timeout_s:=60.0"])
         procs.wait_for("stack", "execute ready", 120)
         rclpy.init()
         client = Client()
         client.call(SetBool, "execute/arm", SetBool.Request(data=True), 30)
+        print(f"{args.objects} objects of {args.mass_kg:g} kg (weight {args.mass_kg * G_MPS2:.1f} N); the detector "
+              f"returns grasps scored >= {min_score_n:.1f} N ({args.safety:g} x weight)", flush=True)
         n_objects = None
         failures = 0
         while failures < 2:
@@ -208,20 +306,27 @@ def run(args) -> dict:
                 report["objects"] = list(states.names)
             if states is not None and not on_table:
                 print("table clear", flush=True)
+                report["end"] = "table clear"
                 break
+            client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=True), 10)
             grasps = client.fresh_grasps(timeout_s=60)
             if grasps is None or not grasps.grasps:
-                print("no grasp detected: round ends", flush=True)
+                print(f"no grasp scored >= {min_score_n:.1f} N detected: round ends", flush=True)
                 report["end"] = "no grasp detected"
                 break
             save_scene_png(client, grasps, out / f"attempt_{len(report['attempts']) + 1:02d}.png")
+            # While the arm moves nobody needs new views: fusing and detecting them would
+            # take CPU from the physics. (Paused only now: the executor wants a TSDF
+            # younger than its max_tsdf_age_s.)
+            client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=False), 10)
             # Best-ranked first; a grasp the executor refuses before moving (hand in
             # collision with the TSDF, unreachable) is no attempt: try the next one.
             t0 = time.monotonic()
+            client.modes_seen = {}
             for rank, top in enumerate(grasps.grasps):
                 request = ExecuteGrasp.Request(use_index=False, grasp=top)
                 request.header = grasps.header
-                response = client.call(ExecuteGrasp, "execute_grasp", request, 180)
+                response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
                 if response.result_code not in REFUSED_BEFORE_MOTION:
                     break
             if response.result_code in REFUSED_BEFORE_MOTION:
@@ -229,22 +334,46 @@ def run(args) -> dict:
                       f"(last: {response.message}): round ends", flush=True)
                 report["end"] = "no executable grasp"
                 break
-            lifted = []
-            if client.states is not None:
-                lifted = [n for n, l in zip(client.states.names, client.states.lifted) if l]
-            success = response.success and bool(lifted)
+            result = RESULT_NAMES.get(response.result_code, str(response.result_code))
+            if response.result_code in FAULTS:
+                print(f"executor fault on grasp #{rank + 1}: {result} ({response.message}): round ends", flush=True)
+                report["end"] = f"executor fault: {result}"
+                report["fault"] = response.message
+                break
+            after = client.states_after(1.0)
+            truth, lifted, mode = judge(after)
             pp, qq = top.pose.position, top.pose.orientation
-            attempt = {"rank": rank, "score_n": float(top.gravity_rejection_score), "validness": float(top.validness),
+            # The grasped object: the lifted one, else the one nearest the grasp before it
+            # (a dropped object may have rolled anywhere since).
+            target = lifted[0] if lifted else (states.names[nearest_object(states, (pp.x, pp.y, pp.z))]
+                                               if states is not None and states.names else "")
+            mass = dict(zip(states.names, states.mass_kg)).get(target, args.mass_kg) if states is not None else args.mass_kg
+            # The mode the contacts showed while it was in the hand (4 Hz samples during
+            # the execution), also for an object lost later in the lift.
+            mode = mode or client.modes_seen.get(target, "")
+            weight_n = mass * G_MPS2
+            score = float(top.gravity_rejection_score)
+            attempt = {"rank": rank, "score_n": score, "validness": float(top.validness),
+                       "all_scores_n": [float(g.gravity_rejection_score) for g in grasps.grasps],
                        "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
-                       "result": RESULT_NAMES.get(response.result_code, str(response.result_code)),
-                       "message": response.message,
-                       "lifted": lifted, "success": success, "wall_s": round(time.monotonic() - t0, 1)}
+                       "object": target, "weight_n": round(weight_n, 2), "mode": mode,
+                       "result": result, "message": response.message,
+                       "lifted": lifted, "executor_success": bool(response.success), "ground_truth_lifted": truth,
+                       "success": bool(response.success) and truth, "wall_s": round(time.monotonic() - t0, 1)}
             report["attempts"].append(attempt)
-            print(f"attempt {len(report['attempts'])}: grasp #{rank + 1} score {top.gravity_rejection_score:.1f} N -> "
-                  f"{'SUCCESS' if success else 'FAIL'} ({response.message})", flush=True)
+            k = len(report["attempts"])
+            print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
+                  f"({score / weight_n:.1f}x), {mode + ' grasp' if mode else 'never in the hand'} -> "
+                  f"{'SUCCESS' if attempt['success'] else 'FAIL'} "
+                  f"({result}: {response.message})", flush=True)
+            if bool(response.success) != truth:
+                error = (f"attempt {k}: the executor said {result} but the sim's ground truth says "
+                         + (f"{', '.join(lifted)} is lifted" if truth else "nothing is lifted"))
+                report["errors"].append(error)
+                print(f"ERROR: {error}", flush=True)
             for name in lifted:
                 client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
-            failures = 0 if success else failures + 1
+            failures = 0 if attempt["success"] else failures + 1
         rclpy.try_shutdown()
     finally:
         procs.stop()
@@ -252,8 +381,12 @@ def run(args) -> dict:
     attempts = max(len(report["attempts"]), 1)
     report["SR"] = successes / attempts
     report["CR"] = successes / max(n_objects or args.objects, 1)
+    report["wall_s"] = round(time.monotonic() - t_start, 1)
     (out / "report.json").write_text(json.dumps(report, indent=1))
-    print(f"SR={report['SR']:.2f} CR={report['CR']:.2f}", flush=True)
+    if report["attempts"]:
+        save_summary_png(report, out / "summary.png")
+    print(f"SR={report['SR']:.2f} CR={report['CR']:.2f} errors={len(report['errors'])} "
+          f"({report['wall_s']:.0f} s; {out / 'summary.png'})", flush=True)
     return report
 
 
@@ -262,21 +395,25 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--objects", type=int, default=3)
     p.add_argument("--arrangement", choices=["packed", "pile"], default="packed")
-    p.add_argument("--mass-kg", type=float, default=0.0, help="every object's mass; 0 = their own")
+    p.add_argument("--mass-kg", type=float, default=1.0, help="every object's mass [kg] (default 1.0)")
+    p.add_argument("--safety", type=float, default=1.5,
+                   help="the detector returns grasps scored >= safety x the object's weight (default 1.5)")
     p.add_argument("--model", default="models/gravgrasp.pt")
-    p.add_argument("--min-score-n", type=float, default=0.0, help="ignore grasps scored below this [N]")
+    p.add_argument("--min-score-n", type=float, default=None, help="override the score threshold [N]")
     p.add_argument("--validness-threshold", type=float, default=0.5)
     p.add_argument("--out", default="out/demo")
     args = p.parse_args(argv)
+    if not args.mass_kg > 0 or not args.safety >= 0:
+        p.error("--mass-kg must be > 0 and --safety >= 0")
     if not pathlib.Path(args.model).is_file() and not (pathlib.Path(os.environ.get("GRAVGRASP_ROOT", ".")) / args.model).is_file():
         print(f"demo: model file {args.model} not found: train one (models/README.md) or pass --model", file=sys.stderr)
         return 2
     try:
-        run(args)
+        report = run(args)
     except KeyboardInterrupt:
         print("demo: interrupted; all processes stopped", file=sys.stderr)
         return 130
-    return 0
+    return 1 if report["errors"] else 0
 
 
 if __name__ == "__main__":

@@ -229,6 +229,7 @@ class SimNode(Node):
             msg.in_hand.append(s.in_hand)
             msg.lifted.append(s.lifted)
             msg.out_of_workspace.append(s.out_of_workspace)
+            msg.grasp_mode.append(s.grasp_mode)
         self.pub_pose.publish(cam)
         self.pub_info.publish(info)
         if want_depth and depth is not None:

@@ -164,6 +164,7 @@ class ObjectState:
     in_hand: bool  # touches both fingers
     lifted: bool  # in the hand and >= 1 cm above the table
     out_of_workspace: bool  # outside the task cube's footprint, or below the table top
+    grasp_mode: str = ""  # in the hand: "power" (palm or proximal links touch it) or "precision"
 
 
 @dataclass
@@ -777,10 +778,14 @@ class SimWorld:
             for n, b in zip(self.names, self.w.object_bodies):
                 for g in self.w.plant.GetCollisionGeometriesForBody(b):
                     geom_owner[g.get_value()] = n
+            inner = set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS)  # as grasp_simulation's modes
+            wrapped = set()
             for h, other in self._hand_contact_pairs():
                 n = geom_owner.get(other)
                 if n is not None:
                     touching.setdefault(n, set()).add("left" if h in left else "right" if h in right else "palm")
+                    if self.w.hand_link_of.get(h) in inner:
+                        wrapped.add(n)
             pc = self._plant_context()
             out = []
             for n, b in zip(self.names, self.w.object_bodies):
@@ -793,8 +798,9 @@ class SimWorld:
                 c = v.mean(0)
                 out_ws = bool(c[0] < 0 or c[0] > VOLUME_SIZE_M or c[1] < 0 or c[1] > VOLUME_SIZE_M
                               or v[:, 2].max() < TABLE_HEIGHT_M)
+                mode = ("power" if n in wrapped else "precision") if in_hand else ""
                 out.append(ObjectState(n, X, float(b.get_mass(pc)), height, in_hand,
-                                       in_hand and height >= 0.01, out_ws))
+                                       in_hand and height >= 0.01, out_ws, mode))
             return out
 
     def set_object_mass(self, name: str, mass_kg: float) -> None:
