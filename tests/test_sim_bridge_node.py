@@ -96,11 +96,12 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
     assert spin_until(ros_node, lambda: len(all_states) > n + 1, 15)
     assert list(all_states[-1].names) == []
 
-    # the emulated 2F-85, exactly as a real one: nothing between the fingers
+    # the emulated 2F-85, exactly as a real one: nothing between the fingers, and they
+    # stop where the pads meet (~1.1 mm) reporting an object, as a real 2F-85 can
     with Robotiq2F85(str(link)) as gripper:
         gripper.activate(timeout_s=10.0)
         state = gripper.move_and_wait(0.0, speed_mps=0.15, force_n=40.0, timeout_s=10.0)
-        assert not state.object_detected and gripper.width_m(state) == pytest.approx(0.0, abs=1e-3)
+        assert state.object_detected and gripper.width_m(state) == pytest.approx(0.0011, abs=1e-3)
         state = gripper.move_and_wait(0.085, speed_mps=0.15, force_n=40.0, timeout_s=10.0)
         assert gripper.width_m(state) == pytest.approx(0.085, abs=1e-3)
         # the test hooks: a gripper fault, and a gripper that stops answering
