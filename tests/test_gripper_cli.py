@@ -84,3 +84,18 @@ def test_the_installed_executable(server):
     assert run.returncode == 0 and run.stdout.strip() == "activated, opening 85.0 mm", run.stderr
     run = subprocess.run([exe, "move", "--port", server.port], capture_output=True, text=True, timeout=30)
     assert run.returncode == 2 and "--position-m" in run.stderr
+
+
+def test_calibrate_prints_where_empty_fingers_stop(tmp_path, capsys):
+    """A unit whose fingertips meet at 3.7 mm and report an object there."""
+    emulator = GripperEmulator(KinematicFingers(fingers_meet_m=0.0037), activation_time_s=0.05)
+    with PtyModbusServer(emulator, link_path=str(tmp_path / "ttyRobotiq")) as srv:
+        assert cli(capsys, "activate", "--port", srv.port)[0] == 0
+        code, out, err = cli(capsys, "calibrate", "--port", srv.port)
+        assert code == 0, err
+        assert "fingers close on nothing at 3.7 mm" in out and "gOBJ 2" in out
+        assert "gripper_empty_closed_m:=0.0037" in out or "gripper_empty_closed_m:=0.0036" in out
+        assert emulator.width_m == pytest.approx(0.085)  # left open
+        emulator.plant.object_width_m = 0.04  # something in the hand: refused
+        code, out, err = cli(capsys, "calibrate", "--port", srv.port)
+        assert code == 1 and "something is between" in err

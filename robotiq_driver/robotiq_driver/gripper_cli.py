@@ -5,6 +5,7 @@
     ros2 run robotiq_driver gripper_cli close    --port /dev/ttyUSB0 --force-n 60
     ros2 run robotiq_driver gripper_cli open     --port /dev/ttyUSB0
     ros2 run robotiq_driver gripper_cli move --position-m 0.04 --speed-mps 0.05 --port /dev/ttyUSB0
+    ros2 run robotiq_driver gripper_cli calibrate --port /dev/ttyUSB0 --force-n 40   # empty hand!
 
 Talks to the gripper directly through the driver (no ROS): stop the gripper node
 first, it holds the port. Motions wait until the fingers stop and print how they
@@ -17,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import grip_calibration
 from .gripper_client import GripperError, Robotiq2F85, describe_motion_end
 from .gripper_registers import BAUDRATE, SLAVE_ID, ActivationStatus, ObjectStatus
 from .modbus_client import ModbusError
@@ -76,6 +78,10 @@ def build_parser() -> argparse.ArgumentParser:
     activate.add_argument("--force", action="store_true", help="reset and activate even if already active")
     for name, text in (("open", "open fully"), ("close", "close (stops on an object)")):
         _motion_options(commands.add_parser(name, parents=[common], help=text))
+    _motion_options(commands.add_parser(
+        "calibrate", parents=[common],
+        help="with nothing in the hand: open, close on nothing, open; print where the fingers stop "
+             "(the executor's gripper_empty_closed_m; use the executor's grip speed and force)"))
     move = commands.add_parser("move", parents=[common], help="move the fingers to an opening")
     move.add_argument("--position-m", type=float, required=True, help="finger opening, 0..0.085 m")
     _motion_options(move)
@@ -107,6 +113,10 @@ def run(args: argparse.Namespace) -> str:
             faulted = gripper.read_state().fault != 0
             state = gripper.activate(args.timeout_activation_s, force=args.force or faulted)
             return f"activated, opening {gripper.width_m(state) * 1e3:.1f} mm"
+        if args.command == "calibrate":
+            cal = grip_calibration.calibrate_empty_closed(gripper, args.speed_mps, args.force_n, args.wait_s)
+            return (f"{cal.describe()} at {args.speed_mps:g} m/s, {args.force_n:g} N; for the executor: "
+                    f"-p gripper_empty_closed_m:={cal.width_m:.4f}")
         target = {"open": gripper.scale.stroke_m, "close": 0.0}.get(args.command)
         if target is None:
             target = args.position_m

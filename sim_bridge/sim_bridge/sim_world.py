@@ -720,8 +720,11 @@ class SimWorld:
                 self._blocked_angle = None
                 self._stall_since_s = None
             t = self.time_s
+            # Stopped = stalled while the motor pushes with its full torque towards the
+            # target. Right after a reversal (open after a squeeze) the fingers stall too,
+            # until the servo reference has come back past them: that is no stop.
             stopped = (self._stall_since_s is not None and t - self._stall_since_s >= self.STALL_HOLD_S
-                       and t - cmd.t_start_s >= self.START_GRACE_S)
+                       and t - cmd.t_start_s >= self.START_GRACE_S and self._pushing(target_angle))
             close_enough = abs(self.driver_angle_rad() - target_angle) < 0.01
             if close_enough and (stopped or t - cmd.t_start_s >= self.START_GRACE_S):
                 return cmd.target_width_m, "at_target"
@@ -735,6 +738,14 @@ class SimWorld:
                 self._blocked_angle = self.driver_angle_rad()
                 return width, "blocked"
             return width, "moving"
+
+    def _pushing(self, target_angle) -> bool:
+        """The finger servo's torque is (nearly) at its limit, towards the target."""
+        ctx = self._servo_context()
+        _, _, limit = self.w.finger_servo.command(ctx)
+        q = self.driver_angle_rad()
+        tau = FingerServoSystem.KP_NM_PER_RAD * (self.w.finger_servo.reference(ctx) - q)
+        return tau * (target_angle - q) > 0 and abs(tau) >= 0.9 * limit
 
     def fingers_busy(self) -> bool:
         """True while the fingers move or the servo is still building up its grip."""
@@ -957,6 +968,7 @@ class SimFingerPlant:
         self.advances_time = advances_time
         self.last_call_wall_s = None
         self._pending = None  # (target m, speed m/s, force N): the emulator's latest command
+        self._applied = None  # the command the world runs (what the runner last applied)
         self._snapshot = None  # (the command it answers, FingerReading)
 
     def _reading(self, width, state):
@@ -983,13 +995,17 @@ class SimFingerPlant:
 
     def apply_command(self) -> None:
         """Runner thread: hand the emulator's latest command to the world."""
-        if self._pending is not None:
-            self.world.command_fingers(*self._pending)
+        pending = self._pending
+        if pending is not None:
+            self.world.command_fingers(*pending)
+            self._applied = pending
 
     def take_reading(self) -> None:
-        """Runner thread: the reading `advance` answers with until the next one."""
-        command = self._pending
-        self._snapshot = (command, self._reading(*self.world.finger_status()))
+        """Runner thread: the reading `advance` answers with until the next one, tagged
+        with the command the world ran. (Tagged with the latest *pending* one, a command
+        that arrived between apply and read got the previous command's reading: an open
+        right after a grip read as "stopped on an object while opening" at once.)"""
+        self._snapshot = (self._applied, self._reading(*self.world.finger_status()))
 
     def idle_for_s(self) -> float:
         """Wall seconds since the emulator last drove the fingers (inf: never)."""
