@@ -210,7 +210,8 @@ class GraspExecutor:
             # pre-grasp raised by the lift height (at the pre-grasp itself the top of a
             # tall object can already be between the fingers).
             X_cal = poses["pregrasp"].copy()
-            X_cal[2, 3] += lim.lift_height_m
+            top = float(lim.workspace_max_m[2])  # a high grasp: as high as the workspace allows
+            X_cal[2, 3] = max(X_cal[2, 3], min(X_cal[2, 3] + lim.lift_height_m, top))
             poses = {"calibrate": X_cal, **poses}
         check_limits(poses, lim)
         if self.reachability is not None:
