@@ -25,6 +25,8 @@ setup(
             "demo = sim_bridge.clutter_demo:main",
             "benchmark = sim_bridge.clutter_benchmark:main",
             "qualitative = sim_bridge.qualitative:main",
+            "bench_datagen = sim_bridge.bench_datagen:main",
+            "label_settings_study = sim_bridge.label_settings_study:main",
         ],
     },
 )

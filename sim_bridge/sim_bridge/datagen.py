@@ -30,25 +30,52 @@ from .parallel import make_executor, run_tasks
 
 def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, scheduler=None,
                      block_size=8, sim_settings=None, simulator_factory=None, progress=True,
-                     executor=None):
+                     executor=None, sampling=None):
     """Simulate `grasps_per_object` candidates (rounded up to whole blocks) of every
     source; returns a summary dict.  Finished tables and skip notes are kept, so
-    calling again resumes, and a larger `grasps_per_object` grows the tables."""
-    from .object_grasps import SamplingSettings
+    calling again resumes, and a larger `grasps_per_object` grows the tables.
+    With sampling.sampler == "resting" each object's resting poses are found first
+    (one task per object) and its candidates are drawn per resting pose."""
+    from .object_grasps import RestTask, SamplingSettings, run_rest_task
 
+    sampling = sampling or SamplingSettings()
     store = ObjectStageStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
     atomic_files.remove_stale_temporaries(store.dir)
     n_blocks = -(-grasps_per_object // block_size)
     if len({s.name for s in sources}) != len(sources):
         raise ValueError("object names must be unique")
-    sampling = SamplingSettings()
     # blocks that all finished before a kill but were not merged yet
     for s in sources:
         store.merge_if_complete(s, n_blocks, block_size, seed, sampling)
-    tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory)
-             for s in sources for c in store.pending_chunks(s.name, n_blocks, block_size)]
+
+    def run(fn, tasks, on_result, desc):
+        if not tasks:
+            return
+        if executor is not None:
+            run_tasks(executor, fn, tasks, on_result, desc=desc, progress=progress)
+        else:
+            with make_executor(workers, scheduler) as ex:
+                run_tasks(ex, fn, tasks, on_result, desc=desc, progress=progress)
+
     errors = {}
+    if sampling.sampler == "resting":
+        def on_rest(task, result):
+            status, payload = result
+            if status == "ok":
+                store.write_rest(task.source.name, payload)
+            elif status == "skip":
+                store.write_skip(task.source, payload)
+            else:
+                errors[task.source.name] = payload
+
+        run(run_rest_task, [RestTask(s, sampling) for s in sources
+                            if store.pending_chunks(s.name, n_blocks, block_size)
+                            and store.resting_poses(s.name) is None], on_rest, "resting poses")
+    tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory,
+                         rest=store.resting_poses(s.name) if sampling.sampler == "resting" else None)
+             for s in sources if s.name not in errors
+             for c in store.pending_chunks(s.name, n_blocks, block_size)]
 
     def on_result(task, result):
         status, payload = result
@@ -64,12 +91,7 @@ def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, sc
             store.write_part(task, rows, meta)
             store.merge_if_complete(task.source, n_blocks, block_size, seed, sampling)
 
-    if tasks:
-        if executor is not None:
-            run_tasks(executor, run_chunk, tasks, on_result, desc="object grasps", progress=progress)
-        else:
-            with make_executor(workers, scheduler) as ex:
-                run_tasks(ex, run_chunk, tasks, on_result, desc="object grasps", progress=progress)
+    run(run_chunk, tasks, on_result, "object grasps")
     summary = write_object_report(store, sources, errors)
     return summary
 
@@ -162,6 +184,9 @@ def main(argv=None):
     o.add_argument("--limit", type=int, default=0, help="only the first N objects (after sorting)")
     o.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
                    help="override a grasp_simulation.SimSettings field, e.g. max_close_time_s=4 (repeatable)")
+    o.add_argument("--sampler", choices=("resting", "free"), default="resting",
+                   help="resting: candidates per resting pose on a table, approach inside the executor's "
+                        "cone (default); free: approach at any angle (the v1 dataset)")
 
     sc = sub.add_parser("scenes", help="scenes with TSDF and voxel labels from grasp tables")
     common(sc)
@@ -170,6 +195,9 @@ def main(argv=None):
     sc.add_argument("--scenes", type=int, required=True, help="number of scenes")
     sc.add_argument("--max-objects", type=int, default=5)
     sc.add_argument("--max-views", type=int, default=6)
+    sc.add_argument("--label-pose", choices=("commanded", "settled"), default="commanded",
+                    help="hand pose a label carries: the one the robot commands (default) or the one after "
+                         "the object settled in the hand (the v1 dataset)")
 
     args = p.parse_args(argv)
     try:
@@ -193,15 +221,19 @@ def _run(p, args):
             settings = sim_settings(args.sim_setting)
         except ValueError as e:
             p.error(str(e))
+        from .antipodal_sampling import SamplingSettings
+
         s = run_object_stage(args.out, sources, args.grasps_per_object, args.seed, args.workers, args.scheduler,
-                             block_size=args.block_size, sim_settings=settings, progress=not args.no_progress)
+                             block_size=args.block_size, sim_settings=settings, progress=not args.no_progress,
+                             sampling=SamplingSettings(sampler=args.sampler))
         print(f"objects: ok={s['ok']} skipped={s['skipped']} error={s['error']} pending={s['pending']} "
               f"(report: {ObjectStageStore(args.out).dir / 'report.json'})")
         return 1 if s["error"] else 0
     from .scene_dataset import run_scene_stage
 
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
-                        max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress)
+                        max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
+                        label_pose=args.label_pose)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
 
