@@ -21,7 +21,6 @@ the first meshes of that directory that are not in --exclude.
 """
 
 import argparse
-import json
 import pathlib
 import sys
 import time
@@ -31,7 +30,7 @@ import numpy as np
 
 from . import hand_collision
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
-from .object_grasps import mesh_sources, procedural_sources
+from .object_grasps import mesh_sources, procedural_sources, read_name_list
 from .parallel import make_executor, run_tasks, task_seed
 from .scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 from .voxel_labels import RESOLUTION
@@ -118,7 +117,7 @@ def main(argv=None):
 
     sources = procedural_sources(args.procedural, 1000) if args.procedural else []
     if args.meshes:
-        excluded = set(pathlib.Path(args.exclude).read_text().split()) if args.exclude else set()
+        excluded = read_name_list(args.exclude) if args.exclude else set()
         sources += [s for s in mesh_sources(args.meshes) if s.name not in excluded][:args.mesh_objects]
     if not sources:
         p.error("no objects: give --procedural N and/or --meshes DIR")
@@ -165,7 +164,8 @@ def main(argv=None):
     print(f"{len(sources)} objects ({sum(s.kind == 'mesh' for s in sources)} meshes), {args.grasps} candidates "
           f"per object and sampler, {wall:.0f} s wall; resting poses {rest_cpu:.1f} CPU s per object")
     print(f"{'':34s} {'free (v1)':>14s} {'resting (v2)':>14s}")
-    rows = [("held grasps / held", "held", "{:.0f}"), ("held grasps per CPU-hour", "held_per_cpu_hour", "{:.0f}"),
+    rows = [("candidates simulated", "candidates", "{:.0f}"), ("held", "held", "{:.0f}"),
+            ("held grasps per CPU-hour", "held_per_cpu_hour", "{:.0f}"),
             ("table-only collision-free", "table_free_fraction", "{:.1%}"),
             ("labelled voxels per object/scene", "voxels_per_object_per_scene", "{:.1f}"),
             ("labels per scene per CPU-hour", "labels_per_scene_per_cpu_hour", "{:.0f}")]

@@ -24,7 +24,8 @@ import numpy as np
 
 from . import atomic_files
 from .objects import ObjectError
-from .object_grasps import (ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, run_chunk)
+from .object_grasps import (ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, read_name_list,
+                            run_chunk)
 from .parallel import make_executor, run_tasks
 
 
@@ -147,7 +148,8 @@ def sim_settings(overrides=()):
 
 
 def _object_sources(args):
-    groups = [mesh_sources(d, args.density) for d in args.meshes or []]
+    excluded = set().union(*[read_name_list(f) for f in args.exclude]) if args.exclude else set()
+    groups = [[s for s in mesh_sources(d, args.density) if s.name not in excluded] for d in args.meshes or []]
     if args.procedural:
         groups.append(procedural_sources(args.procedural, args.procedural_seed))
     # Round-robin over the sets, so that a run stopped early (or --limit) already has
@@ -173,6 +175,8 @@ def main(argv=None):
     o = sub.add_parser("objects", help="per-object grasp tables")
     common(o)
     o.add_argument("--meshes", action="append", help="directory of URDFs (VGN layout) or OBJs; repeatable")
+    o.add_argument("--exclude", action="append", default=[], metavar="FILE",
+                   help="leave out the meshes named in FILE (e.g. models/vgn_heldout_meshes.txt); repeatable")
     o.add_argument("--density", type=float, default=0.0,
                    help="kg/m^3 for bare OBJ files (URDFs carry their mass)")
     o.add_argument("--procedural", type=int, default=0, help="number of procedural objects")

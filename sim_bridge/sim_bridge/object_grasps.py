@@ -109,6 +109,14 @@ def mesh_sources(mesh_dir, density_kg_m3=0.0):
     return [ObjectSource(p.stem, "mesh", path=str(p.resolve()), density_kg_m3=density_kg_m3) for p in files]
 
 
+def read_name_list(path):
+    """Object names of a list file (one per line, '#' comments), e.g. the held-out meshes."""
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise ObjectError(f"name list {p} does not exist")
+    return {line.split("#")[0].strip() for line in p.read_text().splitlines()} - {""}
+
+
 def procedural_sources(count, seed):
     return [ObjectSource(f"proc{seed}_{i:05d}", "procedural", proc_seed=seed, proc_count=count, proc_index=i)
             for i in range(count)]
