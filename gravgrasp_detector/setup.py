@@ -25,6 +25,7 @@ setup(
             "model_card = gravgrasp_detector.model_card:main",
             "execute = gravgrasp_detector.execute_node:main",
             "stack = gravgrasp_detector.stack_node:main",
+            "ur_arm = gravgrasp_detector.ur_arm_node:main",
         ],
     },
 )
