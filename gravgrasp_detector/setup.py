@@ -26,6 +26,7 @@ setup(
             "execute = gravgrasp_detector.execute_node:main",
             "stack = gravgrasp_detector.stack_node:main",
             "ur_arm = gravgrasp_detector.ur_arm_node:main",
+            "calibrate_camera = gravgrasp_detector.calibrate_node:main",
         ],
     },
 )
