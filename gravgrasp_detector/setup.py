@@ -9,6 +9,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/cells", ["cells/sim.yaml", "cells/ur5e_2f85_realsense.yaml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

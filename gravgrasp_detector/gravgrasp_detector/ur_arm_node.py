@@ -153,7 +153,7 @@ class URArmNode(Node):
         try:
             status = self.arm.keep_connected()
         except ConnectionLost as e:
-            self._problem(f"cannot reach {self.where}: {e}. {UNREACHABLE_HINT}; retrying every {self.reconnect_period_s:g} s")
+            self._problem(f"cannot reach {self.where}: {e}; {UNREACHABLE_HINT}; retrying every {self.reconnect_period_s:g} s")
             return
         if status:
             self._last_problem = None
@@ -240,7 +240,7 @@ class URArmNode(Node):
             response.message = f"connected: {self.arm.connect()}"
             response.success = True
         except ConnectionLost as e:
-            response.success, response.message = False, f"cannot reach {self.where}: {e}. {UNREACHABLE_HINT}"
+            response.success, response.message = False, f"cannot reach {self.where}: {e}; {UNREACHABLE_HINT}"
         return response
 
     def close(self):
