@@ -13,6 +13,7 @@ for real against it. Faults are switched on by attributes:
     arrive_offset_m           a motion ends this far (x) from its target
     hang                      names of methods that block until `release()`
     refuse_connect            the constructor raises RuntimeError (robot unreachable)
+    control_unavailable       only the receive interface connects (pendant in Local mode)
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ class FakeURController:
         self.arrive_offset_m = 0.0
         self.hang: set[str] = set()
         self.refuse_connect = False
+        self.control_unavailable = False  # the pendant in Local mode: only the receive interface connects
         self.time_scale = 1.0        # < 1: motions take that fraction of distance / speed
         self.link_up = True
         self._released = threading.Event()
@@ -54,6 +56,8 @@ class FakeURController:
         if self.refuse_connect:
             raise RuntimeError("Error: Could not connect to: 192.0.2.1 at 30004, verify the IP")
         self.link_up = True
+        if self.control_unavailable:
+            return None, FakeReceive(self), "ur_rtde: Please enable remote control on the robot!"
         return FakeControl(self), FakeReceive(self)
 
     def release(self):

@@ -196,6 +196,21 @@ def test_unreachable_or_silent_controller_at_connect():
         ur.release()
 
 
+def test_local_mode_watches_the_arm_but_never_moves_it():
+    arm, ur = make_arm()
+    ur.control_unavailable = True
+    status = arm.connect()
+    assert "monitoring only" in status and "enable remote control" in status, status
+    assert arm.receiving and not arm.connected
+    X = arm.flange_in_task()  # the fake TCP (0.4, 0, 0.4) in the base, pointing down
+    np.testing.assert_allclose(X[:3, 3], [0.15, -0.05, 0.4 + 0.1558], atol=1e-9)
+    with pytest.raises(ConnectionLost, match="switch the pendant to Remote Control"):
+        arm.move(tcp(0.15, 0.15, 0.25))
+    assert ur.called("moveL") == [] and ur.called("setTcp") == []
+    ur.control_unavailable = False
+    assert "RUNNING" in arm.keep_connected() and arm.connected
+
+
 def test_keep_connected_reconnects_only_when_down():
     arm, ur = make_arm()
     assert "RUNNING" in arm.keep_connected()

@@ -29,6 +29,10 @@ What happens to a request, in order; nothing moves until every check passed:
        speed slider) -> stopL and fail; at the end the actual TCP must be within
        position/orientation tolerance of the target.
 
+Monitoring only: `connect()` may return (None, receive, why) when the control interface
+cannot be built (e.g. the pendant is in Local mode for jogging); then poses are read
+(flange_pose, for calibration) and every motion request raises ConnectionLost saying so.
+
 Never hang: every RTDE call runs on this connection's own thread and is waited on for
 at most `call_timeout_s` (`connect_timeout_s` for connecting); no answer, an exception,
 or isConnected() false raise `ConnectionLost` and drop the connection; the next request
@@ -193,12 +197,19 @@ class URArm:
         self._stop = threading.Event()
         self._moving = threading.Event()
         self.last_error = "not connected yet"
+        self.monitor_only = ""   # why only the receive interface is connected ('' = both or none)
 
     # -- connection -----------------------------------------------------------------
 
     @property
     def connected(self) -> bool:
+        """Both interfaces up: the arm can be moved."""
         return self._control is not None
+
+    @property
+    def receiving(self) -> bool:
+        """At least the receive interface is up (flange_pose can be published)."""
+        return self._receive is not None
 
     @property
     def busy(self) -> bool:
@@ -212,12 +223,18 @@ class URArm:
             self._drop_locked("reconnecting")
             calls = _CallThread()
             try:
-                control, receive = self._wait(calls.submit(self._connect), self.settings.connect_timeout_s,
-                                              "connecting to the controller")
+                got = self._wait(calls.submit(self._connect), self.settings.connect_timeout_s,
+                                 "connecting to the controller")
             except ConnectionLost:
                 calls.close()
                 raise
+            control, receive = got[0], got[1]
             self._control, self._receive, self._calls = control, receive, calls
+            self.monitor_only = "" if control is not None else (got[2] if len(got) > 2 else "no control interface")
+        if control is None:  # watching only (pendant in Local mode): flange_pose, no motion
+            status = self.status_line()
+            self.last_error = f"monitoring only, the control interface is not connected ({self.monitor_only})"
+            return f"{status}; {self.last_error}"
         try:
             tcp = [float(v) for v in self.settings.tcp_in_flange]
             if not self._rpc(control.setTcp, tcp):
@@ -261,6 +278,7 @@ class URArm:
         if self._calls is not None:
             self._calls.close()
         self._control = self._receive = self._calls = None
+        self.monitor_only = ""
         self.last_error = why
 
     def _lost(self, why: str) -> ConnectionLost:
@@ -292,6 +310,9 @@ class URArm:
             self._log(f"not connected ({self.last_error}): connecting")
             self.connect()
         control, receive = self._control, self._receive
+        if control is None and receive is not None:
+            raise ConnectionLost(f"the RTDE control interface is not connected ({self.monitor_only}): switch the "
+                                 "pendant to Remote Control (ur_arm retries), until then it only watches the arm")
         if control is None or not (self._rpc(control.isConnected) and self._rpc(receive.isConnected)):
             raise self._lost("the RTDE connection reports itself lost (cable, controller restart, or another client)")
         return control, receive
@@ -299,8 +320,8 @@ class URArm:
     # -- state ----------------------------------------------------------------------
 
     def status_line(self) -> str:
-        control, receive = self._control, self._receive
-        if control is None:
+        receive = self._receive
+        if receive is None:
             raise ConnectionLost(f"not connected to the robot ({self.last_error})")
         robot = self._rpc(receive.getRobotMode)
         safety = self._rpc(receive.getSafetyMode)

@@ -50,7 +50,10 @@ def rtde_connect(robot_ip: str, frequency_hz: float):
         except ImportError as e:
             raise RuntimeError(f"ur_rtde is not installed ({e}): pip install ur-rtde==1.6.5") from None
         receive = rtde_receive.RTDEReceiveInterface(robot_ip, frequency_hz)
-        control = rtde_control.RTDEControlInterface(robot_ip, frequency_hz)
+        try:
+            control = rtde_control.RTDEControlInterface(robot_ip, frequency_hz)
+        except RuntimeError as e:  # e.g. the pendant in Local mode: watch the arm, do not move it
+            return None, receive, f"{e}".strip()
         return control, receive
     return connect
 
@@ -127,6 +130,7 @@ class URArmNode(Node):
         self.arm = URArm(connect, settings, log=self.get_logger().info)
         self._last_problem = None
         self._last_problem_t = -math.inf
+        self._last_status = None
 
         services = ReentrantCallbackGroup()
         self.create_service(MoveToPose, "move_to_pose", self._guarded(self._on_move), callback_group=services)
@@ -155,12 +159,13 @@ class URArmNode(Node):
         except ConnectionLost as e:
             self._problem(f"cannot reach {self.where}: {e}; {UNREACHABLE_HINT}; retrying every {self.reconnect_period_s:g} s")
             return
-        if status:
+        if status and status != self._last_status:  # a monitor-only link retries: say it once
             self._last_problem = None
             self.get_logger().info(f"connected to {self.where}: {status}")
+        self._last_status = status or self._last_status
 
     def _publish_state(self):
-        if not self.arm.connected:
+        if not self.arm.receiving:
             return
         stamp = self.get_clock().now().to_msg()
         try:
