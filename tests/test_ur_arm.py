@@ -26,8 +26,9 @@ def tcp(x, y, z, R=DOWN):
 def make_arm(ur=None, **overrides):
     ur = ur or FakeURController()
     # The executor's default base: 0.45 m in front of the workspace, turned 90 deg.
-    settings = dict(X_task_base=xyz_yaw_to_matrix([0.15, -0.45, 0.0, math.pi / 2]), call_timeout_s=0.3,
-                    connect_timeout_s=0.5, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2)
+    # Timeouts generous enough for a loaded 2-core machine; the hang tests shorten them.
+    settings = dict(X_task_base=xyz_yaw_to_matrix([0.15, -0.45, 0.0, math.pi / 2]), call_timeout_s=1.5,
+                    connect_timeout_s=3.0, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2)
     settings.update(overrides)
     arm = URArm(ur.connect, URArmSettings(**settings))
     # Start the fake TCP where the first target of most tests is, in the base frame.
@@ -161,6 +162,7 @@ def test_lost_link_mid_motion_raises_then_reconnects():
 def test_a_call_that_never_answers_is_a_lost_link_not_a_hang():
     arm, ur = make_arm()
     arm.connect()
+    arm.settings.call_timeout_s = 0.3
     ur.hang.add("getActualTCPPose")
     t0 = time.monotonic()
     try:
@@ -186,6 +188,7 @@ def test_unreachable_or_silent_controller_at_connect():
         result_error = str(e)
     assert result_error and "verify the IP" in result_error
     ur.refuse_connect = False
+    arm.settings.connect_timeout_s = 0.5
     ur.hang.add("connect")
     t0 = time.monotonic()
     try:

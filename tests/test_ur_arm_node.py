@@ -44,7 +44,7 @@ def served(ros_node):
     ur = FakeURController()
     ur.time_scale = 0.3
     arm_node = URArmNode(connect=ur.connect, parameter_overrides=[
-        Parameter("call_timeout_s", value=0.5), Parameter("motion_timeout_margin_s", value=2.0),
+        Parameter("call_timeout_s", value=2.0), Parameter("motion_timeout_margin_s", value=2.0),
         Parameter("reconnect_period_s", value=0.2), Parameter("tcp_in_flange", value=[0.0, 0.0, 0.1558, 0.0, 0.0, 0.0])])
     executor = MultiThreadedExecutor(num_threads=6)
     executor.add_node(arm_node)
