@@ -75,7 +75,7 @@ def main(args=None):
         for make in makers:
             nodes.append(make())
         by_name = {node.get_name(): node for node in nodes}
-        declared = {name: set(node._parameters) for name, node in by_name.items()}  # noqa: SLF001 (declared names)
+        declared = {name: set(node.get_parameters_by_prefix("")) for name, node in by_name.items()}
         unknown = unknown_parameters(sections, declared)
         if unknown and stack["check_parameters"]:
             raise CellConfigError(f"the parameter file gives {', '.join(unknown)}, which no node of the stack declares "
