@@ -17,6 +17,7 @@ shared path).
 import argparse
 import itertools
 import json
+import os
 import sys
 from concurrent.futures.process import BrokenProcessPool
 
@@ -60,23 +61,15 @@ def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, sc
                 run_tasks(ex, fn, tasks, on_result, desc=desc, progress=progress)
 
     errors = {}
-    if sampling.sampler == "resting":
-        def on_rest(task, result):
-            status, payload = result
-            if status == "ok":
-                store.write_rest(task.source.name, payload)
-            elif status == "skip":
-                store.write_skip(task.source, payload)
-            else:
-                errors[task.source.name] = payload
 
-        run(run_rest_task, [RestTask(s, sampling) for s in sources
-                            if store.pending_chunks(s.name, n_blocks, block_size)
-                            and store.resting_poses(s.name) is None], on_rest, "resting poses")
-    tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory,
-                         rest=store.resting_poses(s.name) if sampling.sampler == "resting" else None)
-             for s in sources if s.name not in errors
-             for c in store.pending_chunks(s.name, n_blocks, block_size)]
+    def on_rest(task, result):
+        status, payload = result
+        if status == "ok":
+            store.write_rest(task.source.name, payload)
+        elif status == "skip":
+            store.write_skip(task.source, payload)
+        else:
+            errors[task.source.name] = payload
 
     def on_result(task, result):
         status, payload = result
@@ -92,7 +85,21 @@ def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, sc
             store.write_part(task, rows, meta)
             store.merge_if_complete(task.source, n_blocks, block_size, seed, sampling)
 
-    run(run_chunk, tasks, on_result, "object grasps")
+    resting = sampling.sampler == "resting"
+    # Resting poses, then grasps, a few objects at a time: finished tables appear early
+    # and a run stopped after hours has whole tables, not just everyone's resting poses.
+    step = 4 * (workers or os.cpu_count() or 1) if resting else len(sources)
+    for first in range(0, len(sources), max(1, step)):
+        group = sources[first:first + step]
+        if resting:
+            run(run_rest_task, [RestTask(s, sampling) for s in group
+                                if store.pending_chunks(s.name, n_blocks, block_size)
+                                and store.resting_poses(s.name) is None], on_rest, "resting poses")
+        tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory,
+                             rest=store.resting_poses(s.name) if resting else None)
+                 for s in group if s.name not in errors
+                 for c in store.pending_chunks(s.name, n_blocks, block_size)]
+        run(run_chunk, tasks, on_result, "object grasps")
     summary = write_object_report(store, sources, errors)
     return summary
 
