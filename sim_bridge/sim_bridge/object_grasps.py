@@ -195,10 +195,6 @@ def shape_sha256(spec):
     return h.hexdigest()
 
 
-def object_seed(master_seed, name):
-    return task_seed(master_seed, "object", name)
-
-
 def block_seed(master_seed, name, block):
     return task_seed(master_seed, "object", name, "block", block)
 
