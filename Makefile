@@ -19,10 +19,13 @@ help:
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 8 scenes x 0.1/0.5/1.5 kg, all methods (~2 h; nohup; resumable)"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
-	@echo "make data-report   - summary of the committed per-object grasp tables"
-	@echo "make data-objects  - per-object grasp tables (resumable; GRASPS=128 WORKERS=2)"
+	@echo "make data-report   - summary of the committed v2 grasp tables and out/scenes_v2"
+	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
+	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
+	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
-	@echo "make data-scenes   - training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
+	@echo "make data-scenes   - v2 training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
+	@echo "make data-objects-v1 / data-scenes-v1 - the v1 dataset of the shipped models"
 	@echo "make qualitative   - paper V-A scene through MODEL (models/gravgrasp.pt): TSDF/score/validness slice PNGs"
 	@echo "make model-cards   - qualitative PNGs + models/<stem>.md card for every model of 'make models'"
 
@@ -78,21 +81,47 @@ BENCH_SIZE ?= --scenes 8 --weights 0.1,0.5,1.5 --ablation-weights 0.5
 benchmark: setup
 	@$(ROS) ros2 run sim_bridge benchmark --out out/benchmark --workers $(WORKERS) $(BENCH_SIZE)
 
-data-report: setup
-	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v1
-
-# The dataset of the shipped model: VGN's training meshes + 200 procedural objects, grasps
-# simulated at the label settings (dt 1 ms). Both stages resume when rerun.
-GRASPS ?= 128
+# Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
+# cheaper label settings (make label-settings-study), the held-out meshes left out.
+# The tables are committed (models/grasp_tables_v2); scenes are regenerated from the seed.
+GRASPS ?= 64
 SCENES ?= 5000
 WORKERS ?= 2
+PROCEDURAL ?= 100
+LABEL_SETTINGS := --sim-setting time_step_s=0.001 --sim-setting max_force_n=100 --sim-setting force_ramp_rate_n_s=800
+HELD_OUT := models/vgn_heldout_meshes.txt
 data-objects: setup
-	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --procedural 200 \
-	  --grasps-per-object $(GRASPS) --sim-setting time_step_s=0.001 --seed 0 --out models/grasp_tables_v1 --workers $(WORKERS)
+	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
+	  --procedural $(PROCEDURAL) --grasps-per-object $(GRASPS) $(LABEL_SETTINGS) --seed 0 \
+	  --out models/grasp_tables_v2 --workers $(WORKERS)
 
 data-scenes: setup
+	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v2 --meshes ../shared/meshes/vgn_train \
+	  --scenes $(SCENES) --seed 0 --out out/scenes_v2 --workers $(WORKERS)
+
+data-report: setup
+	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v2 --scenes out/scenes_v2
+
+# Side by side on the same objects: v1's free sampler at v1's label settings and the
+# v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
+.PHONY: bench-datagen label-settings-study data-objects-v1 data-scenes-v1
+bench-datagen: setup
+	@$(ROS) ros2 run sim_bridge bench_datagen --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
+	  --workers $(WORKERS) --json out/bench_datagen.json
+
+# Which label settings rank grasps as the v1 settings do, at less CPU (~20 min).
+label-settings-study: setup
+	@$(ROS) ros2 run sim_bridge label_settings_study --tables models/grasp_tables_v1 \
+	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS)
+
+# Dataset v1 (the shipped models' data): free sampler, settled poses.
+data-objects-v1: setup
+	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --procedural 200 --sampler free \
+	  --grasps-per-object 128 --sim-setting time_step_s=0.001 --seed 0 --out models/grasp_tables_v1 --workers $(WORKERS)
+
+data-scenes-v1: setup
 	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v1 --meshes ../shared/meshes/vgn_train \
-	  --scenes $(SCENES) --seed 0 --out out/scenes_v1 --workers $(WORKERS)
+	  --scenes 1200 --seed 0 --out out/scenes_v1 --label-pose settled --workers $(WORKERS)
 
 # The shipped model and the benchmark's comparison models, all trained on out/scenes_v1
 # (make data-scenes). Each run resumes from out/training/<variant>/checkpoint.pt.

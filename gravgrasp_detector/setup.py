@@ -9,6 +9,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/cells", ["cells/sim.yaml", "cells/ur5e_2f85_realsense.yaml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -25,6 +26,8 @@ setup(
             "model_card = gravgrasp_detector.model_card:main",
             "execute = gravgrasp_detector.execute_node:main",
             "stack = gravgrasp_detector.stack_node:main",
+            "ur_arm = gravgrasp_detector.ur_arm_node:main",
+            "calibrate_camera = gravgrasp_detector.calibrate_node:main",
         ],
     },
 )

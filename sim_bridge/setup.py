@@ -26,6 +26,8 @@ setup(
             "benchmark = sim_bridge.clutter_benchmark:main",
             "qualitative = sim_bridge.qualitative:main",
             "soak = sim_bridge.soak:main",
+            "bench_datagen = sim_bridge.bench_datagen:main",
+            "label_settings_study = sim_bridge.label_settings_study:main",
         ],
     },
 )

@@ -13,12 +13,14 @@ import numpy as np
 import pytest
 import trimesh
 
+from sim_bridge.antipodal_sampling import SamplingSettings
 from sim_bridge.datagen import run_object_stage
 from sim_bridge.object_grasps import load_table, mesh_sources
 
 GRASPS = 4
 BLOCK = 2
 SEED = 7
+SAMPLING = SamplingSettings(sampler="resting")  # the CLI's default
 
 
 def write_urdf(d, name, mesh, mass):
@@ -44,7 +46,8 @@ def good_meshes(tmp_path_factory):
 def reference(good_meshes, tmp_path_factory):
     """The tiny job on a local process pool (2 workers)."""
     out = tmp_path_factory.mktemp("ref")
-    s = run_object_stage(out, mesh_sources(good_meshes), GRASPS, SEED, workers=2, block_size=BLOCK, progress=False)
+    s = run_object_stage(out, mesh_sources(good_meshes), GRASPS, SEED, workers=2, block_size=BLOCK, progress=False,
+                         sampling=SAMPLING)
     assert s["ok"] == 2 and s["error"] == 0
     return out
 
@@ -75,6 +78,9 @@ def test_tables_hold_simulated_grasps(reference):
             assert (m != "none") == bool(g)
             assert (sc > 0).all() if g else (why != "")
         assert (t["wall_time_s"] > 0).all()
+        # sampled per resting pose: each candidate names a pose of the table's list
+        assert len(t["rest_probability"]) >= 1 and abs(t["rest_probability"].sum() - 1) < 1e-9
+        assert ((t["rest_pose"] >= 0) & (t["rest_pose"] < len(t["rest_probability"]))).all()
     assert not list((pathlib.Path(reference) / "objects").rglob("*.tmp"))
     assert not (pathlib.Path(reference) / "objects" / ".parts").exists()
 
@@ -105,7 +111,7 @@ def test_dask_local_cluster_gives_the_same_tables(good_meshes, reference, tmp_pa
                                   dashboard_address=None) as cluster:
         # through the scheduler address, as `datagen --scheduler tcp://...` does
         s = run_object_stage(tmp_path, mesh_sources(good_meshes), GRASPS, SEED, block_size=BLOCK,
-                             scheduler=cluster.scheduler_address, progress=False)
+                             scheduler=cluster.scheduler_address, progress=False, sampling=SAMPLING)
     assert s["ok"] == 2
     assert_same_tables(reference, tmp_path)
 
@@ -151,13 +157,13 @@ def test_a_finished_table_grows_by_whole_blocks(good_meshes, reference, tmp_path
 
     shutil.copytree(pathlib.Path(reference) / "objects", tmp_path / "objects")
     s = run_object_stage(tmp_path, mesh_sources(good_meshes), GRASPS + BLOCK, SEED, workers=2, block_size=BLOCK,
-                         progress=False)
+                         progress=False, sampling=SAMPLING)
     assert s["ok"] == 2
     old, new = tables(reference), tables(tmp_path)
     for name in old:
         assert int(new[name]["n_blocks"]) == GRASPS // BLOCK + 1
         assert len(new[name]["mode"]) == GRASPS + BLOCK
-        for key in ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "mode", "grasped", "reason"):
+        for key in ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "mode", "grasped", "reason", "rest_pose"):
             np.testing.assert_array_equal(new[name][key][:GRASPS], old[name][key], err_msg=f"{name}:{key}")
         # the new block is new work, not a copy of an old one
         assert not np.isin(new[name]["X_object_tcp_candidate"][GRASPS:, 0, 3],

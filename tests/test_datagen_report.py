@@ -24,10 +24,17 @@ def test_report_counts_and_last_lines(tmp_path, capsys):
              arrangement=np.asarray("pile"))
     assert main([str(tmp_path)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
-    assert out[-3:] == ["objects=2", "grasps=4", "power_fraction=0.5000"]
+    assert out[-4:] == ["objects=2", "grasps=4", "power_fraction=0.5000", "labels_per_scene_median=2"]
     assert any("c: mass 0.0 kg is not positive" in line for line in out)
     assert any("labels per scene mean 2.0" in line for line in out)
     assert (tmp_path / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # committed tables and regenerated scenes live apart: --scenes names the scene stage's --out
+    tables = tmp_path / "tables"
+    (objects).rename(tables)
+    assert main([str(tables), "--scenes", str(tmp_path), "--png", str(tmp_path / "r2.png")]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "labels_per_scene_median=2"
+    assert main([str(tables), "--png", str(tmp_path / "r3.png")]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "labels_per_scene_median=n/a"
 
 
 def test_report_on_an_empty_directory_is_one_clear_line(tmp_path, capsys):

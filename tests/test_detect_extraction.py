@@ -39,8 +39,9 @@ def hand_made_outputs():
 
 
 def select(**kwargs):
+    """Steps 1-4 on the bare table (step 5, something between the fingers, has its own test)."""
     score, validness = hand_made_outputs()
-    args = dict(voxel_size_m=VS, origin=(0.0, 0.0, 0.0))
+    args = dict(voxel_size_m=VS, origin=(0.0, 0.0, 0.0), min_surface_voxels=0)
     args.update(kwargs)
     return detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", **args)
 
@@ -93,6 +94,26 @@ def test_origin_transform_moves_poses():
         np.testing.assert_allclose(a.pose, T @ b.pose, atol=1e-12)
     shifted = select(origin=np.array([0.5, -0.2, 0.1]))
     np.testing.assert_allclose(shifted[0].pose[:3, 3], plain[0].pose[:3, 3] + [0.5, -0.2, 0.1])
+
+
+def test_a_grasp_with_nothing_between_the_fingers_is_not_published():
+    grid = table_grid().numpy().copy()
+    grid[19:22, 19:22, 7:13] = 0.3        # a 22 mm post on the table, 45 mm tall
+    score, validness = torch.zeros(R, R, R), torch.ones(R, R, R)
+    score[20, 20, 10] = 9.0                # on the post
+    score[10, 10, 8] = 12.0                # over the bare table: the fingers close on nothing
+    score[20, 27, 10] = 11.0               # 45 mm from the post along the closing axis (y)
+    score[27, 20, 10] = 10.0               # 52 mm from it across the pads (x)
+    score[20, 25, 10] = 8.0                # 30 mm along y: the post is between the open fingers
+    grasps = detection.select_grasps(torch.from_numpy(grid), score, validness, top_down_channels, "ex-ez", VS,
+                                     nms_radius_voxels=0)
+    assert [g.voxel_index for g in grasps] == [(20, 20, 10), (20, 25, 10)]
+    # the veto is what removed the others
+    everything = detection.select_grasps(torch.from_numpy(grid), score, validness, top_down_channels, "ex-ez", VS,
+                                         nms_radius_voxels=0, min_surface_voxels=0)
+    assert len(everything) == 5
+    counts = detection.surface_voxels_in_closing_region(grid, np.array([g.pose for g in everything]), VS)
+    assert [int(c > 0) for c in counts] == [0, 0, 0, 1, 1]   # 12, 11, 10 N vetoed; 9 and 8 N kept
 
 
 def test_nothing_valid_gives_no_grasps():

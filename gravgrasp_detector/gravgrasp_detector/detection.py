@@ -11,8 +11,14 @@ numpy until the final few grasps):
    (and > 0).
 3. non-maximum suppression: keep a voxel only if its score is the maximum of the
    surviving scores in its (2 * nms_radius_voxels + 1)^3 neighbourhood.
-4. rank by score (highest first), keep `max_grasps`, then evaluate the rotation head
-   only at those voxels and rebuild R (rotation.py).
+4. rank by score (highest first), evaluate the rotation head only at the first few
+   voxels and rebuild R (rotation.py).
+5. something to hold: keep a grasp only if at least `min_surface_voxels` observed
+   on-or-behind-surface voxels (0 < grid <= 0.5) lie in the closing region of the open
+   hand at its pose (between the pads, palm face to finger tips); then keep
+   `max_grasps`.  Validness is over-confident next to objects and in unobserved space
+   (a real D435 frame gave grasps 6 cm from any observed surface); this is the cheap
+   geometric veto the paper's learned validness should make unnecessary.
 With precision bf16 only the backbone runs in bf16 (autocast); the score/validness
 head runs in float32 on its output, so bf16 rounding of the outputs (8 mantissa
 bits: 0.125 N at 30 N) does not decide near-ties.
@@ -25,8 +31,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from robotiq_driver.hand_geometry import FINGER_TIP_Z_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_FACE_Z_M
+
 from . import rotation
 from .tsdf import InputError
+
+# Where an object must be for the closing fingers to meet it (TCP frame, metres).
+CLOSING_REGION_TCP = np.array([[-PAD_WIDTH_M / 2, -MAX_STROKE_M / 2, PALM_FACE_Z_M],
+                               [PAD_WIDTH_M / 2, MAX_STROKE_M / 2, FINGER_TIP_Z_M]])
 
 PRECISIONS = ("auto", "bf16", "fp32")
 
@@ -104,6 +116,7 @@ def detect_grasps(
     surface_distance_voxels=6,
     nms_radius_voxels=2,
     precision="fp32",
+    min_surface_voxels=1,
 ):
     """Ranked grasps (list of Grasp, highest score first) in the TSDF's frame.
 
@@ -137,7 +150,23 @@ def detect_grasps(
         max_grasps=max_grasps,
         surface_distance_voxels=surface_distance_voxels,
         nms_radius_voxels=nms_radius_voxels,
+        min_surface_voxels=min_surface_voxels,
     )
+
+
+def surface_voxels_in_closing_region(grid, poses_grid, voxel_size_m):
+    """(N,) int: observed on-or-behind-surface voxels (0 < v <= 0.5) whose centres lie
+    in the closing region of the open hand at each pose (4x4, grid frame)."""
+    g = np.asarray(grid)
+    poses = np.asarray(poses_grid, dtype=np.float32).reshape(-1, 4, 4)
+    idx = np.argwhere((g > 0) & (g <= 0.5))
+    if not len(idx) or not len(poses):
+        return np.zeros(len(poses), int)
+    centres = ((idx + 0.5) * voxel_size_m).astype(np.float32)
+    lo, hi = CLOSING_REGION_TCP.astype(np.float32)
+    # all poses at once, in the TCP frames: q[n, m] = R_n^T (c_m - t_n)
+    q = np.matmul(centres[None] - poses[:, None, :3, 3], poses[:, :3, :3])
+    return ((q >= lo) & (q <= hi)).all(axis=2).sum(axis=1)
 
 
 def cube_max(volume, radius):
@@ -179,8 +208,9 @@ def select_grasps(
     max_grasps=20,
     surface_distance_voxels=6,
     nms_radius_voxels=2,
+    min_surface_voxels=1,
 ):
-    """Steps 1-4 of the module doc on network outputs.
+    """Steps 1-5 of the module doc on network outputs (min_surface_voxels 0: no step 5).
 
     grid, score_n, validness: (R, R, R) tensors; rotation_channels_at: callable
     (N, 3) long voxel indices -> (N, C) rotation channels.
@@ -196,19 +226,32 @@ def select_grasps(
         candidate &= masked == cube_max(masked, r)
     index = candidate.nonzero()
     scores = score_n[candidate]
-    order = torch.sort(scores, descending=True, stable=True).indices[: int(max_grasps)]
+    # rotations for a few more than max_grasps: step 5 may veto some
+    ranked = 4 * int(max_grasps) if min_surface_voxels > 0 else int(max_grasps)
+    order = torch.sort(scores, descending=True, stable=True).indices[:ranked]
     index, scores = index[order], scores[order]
     valid = validness[tuple(index.T)]
     if len(index) == 0:
         return []
     R = rotation.reconstruct(rotation_representation, rotation_channels_at(index).float())
 
-    T_task_grid = _to_transform(origin)
     poses = np.zeros((len(index), 4, 4))
     poses[:, :3, :3] = R.double().numpy()
     poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
     poses[:, 3, 3] = 1.0
-    poses = T_task_grid @ poses
+    keep = np.arange(len(index))
+    if min_surface_voxels > 0:
+        # best first, a chunk at a time: usually the first chunk fills max_grasps
+        kept, n = [], int(max_grasps)
+        for start in range(0, len(index), n):
+            counts = surface_voxels_in_closing_region(grid, poses[start:start + n], voxel_size_m)
+            kept.extend(start + np.flatnonzero(counts >= min_surface_voxels))
+            if len(kept) >= n:
+                break
+        keep = np.asarray(kept, int)
+    keep = keep[: int(max_grasps)]
+    poses = _to_transform(origin) @ poses[keep]
+    scores, valid, index = scores[keep], valid[keep], index[keep]
     return [
         Grasp(pose=pose, score_n=score, validness=v, voxel_index=tuple(ijk))
         for pose, score, v, ijk in zip(poses, scores.tolist(), valid.tolist(), index.tolist())

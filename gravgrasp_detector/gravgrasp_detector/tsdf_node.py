@@ -120,6 +120,13 @@ class TSDFNode(Node):
             "Largest |pose stamp - image stamp| accepted with camera_pose_source:=topic, s", 0.0, 10.0)).value
         self.sync_timeout_s = p("sync_timeout_s", 1.0, _float(
             "How long an image waits for its CameraInfo and pose, s", 0.05, 30.0)).value
+        # Topic names as parameters too, so one cell parameter file can point the node at
+        # the camera (a params file cannot remap); -r remapping works as before.
+        topic = lambda name, default, text: p(name, default, ParameterDescriptor(  # noqa: E731
+            description=text, read_only=True)).value
+        self.depth_topic = topic("depth_image_topic", "depth/image", "depth image topic (16UC1 or 32FC1)")
+        self.info_topic = topic("camera_info_topic", "depth/camera_info", "CameraInfo of that depth image")
+        self.pose_topic = topic("camera_pose_topic", "camera_pose", "camera pose topic (camera_pose_source:=topic)")
 
         self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
         self.volume = TSDFVolume(size_m, resolution, truncation_voxels, max_depth_m)
@@ -141,12 +148,12 @@ class TSDFNode(Node):
         elif self.pose_source != "topic":
             raise InputError("config", f"camera_pose_source is {self.pose_source!r}: use 'topic' or 'parameter'")
         else:
-            self.create_subscription(PoseStamped, "camera_pose", self._on_pose, qos_profile_sensor_data,
+            self.create_subscription(PoseStamped, self.pose_topic, self._on_pose, qos_profile_sensor_data,
                                      qos_overriding_options=overridable)
 
-        self.create_subscription(Image, "depth/image", self._on_depth, qos_profile_sensor_data,
+        self.create_subscription(Image, self.depth_topic, self._on_depth, qos_profile_sensor_data,
                                  qos_overriding_options=overridable)
-        self.create_subscription(CameraInfo, "depth/camera_info", self._on_camera_info, qos_profile_sensor_data,
+        self.create_subscription(CameraInfo, self.info_topic, self._on_camera_info, qos_profile_sensor_data,
                                  qos_overriding_options=overridable)
         self.publisher = self.create_publisher(TSDFVolumeMsg, "tsdf", VOLUME_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
@@ -156,7 +163,7 @@ class TSDFNode(Node):
         self.create_timer(10.0, self._log_counts)
         self.get_logger().info(
             f"TSDF {resolution}^3 over {size_m} m in '{self.frame_id}', camera pose from {self.pose_source}; "
-            f"depth on {self.resolve_topic_name('depth/image')}")
+            f"depth on {self.resolve_topic_name(self.depth_topic)}")
 
     def _static_pose(self, values):
         if len(values) != 7:
@@ -178,7 +185,7 @@ class TSDFNode(Node):
             intrinsics = CameraIntrinsics.from_k(msg.k, msg.width, msg.height)
             intrinsics.check()
         except InputError as e:
-            self.problems.report(e.cause, f"{e} (CameraInfo on {self.resolve_topic_name('depth/camera_info')})")
+            self.problems.report(e.cause, f"{e} (CameraInfo on {self.resolve_topic_name(self.info_topic)})")
             return
         self.problems.clear("camera_info_k", "camera_info_size", "no_camera_info")
         self.camera_info = intrinsics
@@ -267,13 +274,13 @@ class TSDFNode(Node):
             if self.camera_info is None:
                 self.problems.report(
                     "no_camera_info",
-                    f"no CameraInfo received on {self.resolve_topic_name('depth/camera_info')} within "
+                    f"no CameraInfo received on {self.resolve_topic_name(self.info_topic)} within "
                     f"{self.sync_timeout_s} s of a depth image: remap depth/camera_info to the camera's "
                     "camera_info topic")
             else:
                 self.problems.report(
                     "no_pose",
-                    f"no camera pose on {self.resolve_topic_name('camera_pose')} for a depth image within "
+                    f"no camera pose on {self.resolve_topic_name(self.pose_topic)} for a depth image within "
                     f"{self.sync_timeout_s} s: publish the camera optical frame's pose (PoseStamped) or "
                     "use camera_pose_source:=parameter with a static camera_pose")
 

@@ -13,6 +13,15 @@
    clears the object, the rest uniform), shift sideways and tilt a little.
    Candidates whose open hand (or its approach) intersects the object are dropped.
 
+`sample_grasp_candidates_at_rest` samples where the grasp will be used: each
+candidate belongs to a resting pose of the object on a table (drawn by its
+probability, `resting_poses`), its approach is drawn inside the executor's cone
+around straight down (rotating about the closing axis; a closing axis too close
+to vertical has no such approach and is skipped), and the open hand with its
+approach must also clear the table in that pose.  `sample_grasp_candidates`
+(approach at any angle about the closing axis, no table) is the unconditioned
+sampler, kept for comparison (`bench_datagen`).
+
 Everything is deterministic for a seed.
 """
 
@@ -41,6 +50,10 @@ class SamplingSettings:
     approach_m: float = 0.05           # straight approach checked for collisions
     clearance_m: float = 0.002         # open hand at least this far from the sampled surface
     max_rounds: int = 40
+    sampler: str = "free"              # "free" (any approach) | "resting" (per resting pose, table, cone)
+    rest_min_probability: float = 0.01 # resting poses rarer than this are not sampled
+    approach_cone_deg: float = 80.0    # at rest: approach within this of straight down (executor's cone)
+    table_clearance_m: float = 0.002   # at rest: open hand at least this far above the table
 
 
 def _rotation_about(axis, angle):
@@ -111,19 +124,57 @@ def _poses(center, y_axis, z_axis):
     return X
 
 
+def _approach_in_cone(u, down, cone_rad, rng):
+    """Approach directions z perpendicular to the closing axes u (both (n,3), object
+    frame) and within cone_rad of `down`, drawn uniformly in the angle about u that
+    the cone allows.  Returns (z, ok); ok is False where no such z exists."""
+    d_perp = down - np.einsum("ij,ij->i", down, u)[:, None] * u
+    n = np.linalg.norm(d_perp, axis=1)
+    ok = n > np.cos(cone_rad) + 1e-9   # the nearest perpendicular approach is inside the cone
+    z_star = d_perp / np.maximum(n, 1e-12)[:, None]
+    # z(delta) = cos(delta) z* + sin(delta) (u x z*); angle to down: cos = cos(delta) |d_perp|
+    delta_max = np.arccos(np.clip(np.cos(cone_rad) / np.maximum(n, 1e-12), -1.0, 1.0))
+    delta = rng.uniform(-1, 1, len(u)) * delta_max
+    z = np.cos(delta)[:, None] * z_star + np.sin(delta)[:, None] * np.cross(u, z_star)
+    return z, ok
+
+
 def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
-    """(N <= count, 4, 4) candidate X_object_tcp for `mesh` (object frame, metres).
+    """(N <= count, 4, 4) candidate X_object_tcp for `mesh` (object frame, metres),
+    approach at any angle about the closing axis (the unconditioned sampler).
 
     Returns fewer than `count` (possibly 0) when the object offers few grasps.
     """
+    return _sample(mesh, count, seed, settings, None)[0]
+
+
+def sample_grasp_candidates_at_rest(mesh, rest, count, seed, settings=SamplingSettings()):
+    """Candidates for an object lying on a table in one of its resting poses.
+
+    rest: resting_poses.RestingPoses of the object.  Returns (X_object_tcp (N, 4, 4),
+    rest_index (N,) int: the pose each candidate was drawn for).  Each X, posed by
+    rest.X_table_object[rest_index], approaches within settings.approach_cone_deg of
+    straight down, and its open hand (with its approach) clears the object and the table.
+    """
+    return _sample(mesh, count, seed, settings, rest)
+
+
+def _sample(mesh, count, seed, settings, rest):
     rng = np.random.default_rng(seed)
     obstacles = hand_collision.surface_points(mesh, seed=int(rng.integers(2**31)))
     depths = np.arange(0.0, -hand_collision.PALM_FACE_Z_M + 1e-9, settings.depth_step_m)
-    found = []
+    cone = np.deg2rad(settings.approach_cone_deg)
+    found, found_pose = [], []
     n_found = 0
     fruitless = 0
+    if rest is not None:
+        # each candidate slot goes to a resting pose drawn by its probability, so a
+        # pose that offers few grasps does not hand its share to rarer poses
+        quota = rng.multinomial(count, rest.probability)
     for _ in range(settings.max_rounds):
         if n_found >= count or fruitless >= 3:  # 3 rounds without a single pose: give up
+            break
+        if rest is not None and quota.sum() == 0:
             break
         fruitless += 1
         batch = max(64, 2 * (count - n_found))
@@ -132,19 +183,31 @@ def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
             continue
         pick = rng.permutation(len(a))[:batch]
         a, b, u = a[pick], b[pick], u[pick]
-        # approach at a random angle about the closing axis
-        e1, e2 = _orthonormal_basis(u)
-        psi = rng.uniform(0, 2 * np.pi, len(u))[:, None]
-        z = np.cos(psi) * e1 + np.sin(psi) * e2
+        if rest is None:
+            # approach at a random angle about the closing axis
+            e1, e2 = _orthonormal_basis(u)
+            psi = rng.uniform(0, 2 * np.pi, len(u))[:, None]
+            z = np.cos(psi) * e1 + np.sin(psi) * e2
+            pose = np.full(len(u), -1)
+        else:
+            pose = rng.choice(len(quota), size=len(u), p=quota / quota.sum())
+            z, ok = _approach_in_cone(u, -rest.up_object()[pose], cone, rng)
+            a, b, u, z, pose = a[ok], b[ok], u[ok], z[ok], pose[ok]
+            if not len(a):
+                continue
         X = _poses((a + b) / 2, u, z)
         # deepest insertion at which the open hand (with its approach) is free
         free = ~hand_collision.collides_along_approach(X, obstacles, depths, approach_m=settings.approach_m,
                                                        margin_m=settings.clearance_m)
+        if rest is not None:
+            X_rest = rest.X_table_object[pose] @ X
+            low = hand_collision.lowest_point_z(X_rest, settings.approach_m, settings.table_clearance_m)
+            free &= low[:, None] + depths[None, :] * X_rest[:, 2, 2][:, None] >= 0.0
         # contiguous free prefix: the hand cannot pass through a collision
         prefix = np.cumprod(free, axis=1).astype(bool)
         n_free = prefix.sum(axis=1)
         usable = n_free > 0
-        X, n_free = X[usable], n_free[usable]
+        X, n_free, pose = X[usable], n_free[usable], pose[usable]
         if not len(X):
             continue
         deepest = depths[n_free - 1]
@@ -162,9 +225,21 @@ def sample_grasp_candidates(mesh, count, seed, settings=SamplingSettings()):
             X[i, :3, :3] = _rotation_about(axes[i], angles[i]) @ X[i, :3, :3]
         ok = ~hand_collision.collides(X, obstacles, approach_m=settings.approach_m,
                                       margin_m=settings.clearance_m)
+        if rest is not None:
+            X_rest = rest.X_table_object[pose] @ X
+            ok &= hand_collision.lowest_point_z(X_rest, settings.approach_m, settings.table_clearance_m) >= 0.0
+            ok &= -X_rest[:, 2, 2] >= np.cos(cone)   # still inside the cone after the tilt
+            # at most each pose's remaining quota, in sampling order
+            rank = np.zeros(len(pose), int)
+            for k in np.unique(pose[ok]):
+                sel = np.flatnonzero(ok & (pose == k))
+                rank[sel] = np.arange(len(sel))
+            ok &= rank < quota[pose]
+            quota = quota - np.bincount(pose[ok], minlength=len(quota))
         found.append(X[ok])
+        found_pose.append(pose[ok])
         n_found += int(ok.sum())
         fruitless = 0 if ok.any() else fruitless
     if not found:
-        return np.zeros((0, 4, 4))
-    return np.concatenate(found)[:count]
+        return np.zeros((0, 4, 4)), np.zeros(0, int)
+    return np.concatenate(found)[:count], np.concatenate(found_pose)[:count]

@@ -1,100 +1,184 @@
-"""Throughput of each data-generation stage on one core: `ros2 run sim_bridge bench_datagen`.
+"""Label yield of the object stage, old and new side by side: `ros2 run sim_bridge bench_datagen`.
 
-Measures, in this process (one core, nothing else of ours running):
-  sampling   antipodal candidates per second (incl. the open-hand collision checks)
-  simulation grasps per hour (close + 6 force ramps, real Drake)
-  scenes     scenes per minute, split into arranging (Drake settling) and
-             the rest (rendering, TSDF fusion, projection, collision filter, labels)
-Each figure is given from wall time and from this process's CPU time (the machine
-may be shared: wall/CPU > 1 means other jobs took the core). The last line is
-machine-readable.
+For the same objects and seed, two ways to fill an object's grasp table:
+  free     candidates all around the free object (approach at any angle about
+           the closing axis), simulated at the v1 label settings;
+  resting  candidates per resting pose on a table, approach inside the
+           executor's cone (antipodal_sampling, resting_poses), simulated at
+           the label settings of the v2 dataset (--new-setting).
+Both are judged in the same resting poses, as a scene would use them:
+  held grasps per CPU-hour          of the grasp simulation (process CPU time);
+  table-only collision-free         share of held grasps whose open hand and
+                                    approach clear the table (rest-probability weighted);
+  labelled voxels per object/scene  distinct TCP voxels (7.5 mm) of the held,
+                                    table-free grasps, the object placed in a
+                                    drawn resting pose at a random yaw and place;
+  labels per scene per CPU-hour     that, per CPU-hour of the object's simulation
+                                    (last line: the resting sampler's figure; the
+                                    gain over the free one is printed before it).
+Objects are procedural (seed 1000, not the training set's) plus, with --meshes,
+the first meshes of that directory that are not in --exclude.
 """
 
 import argparse
 import pathlib
 import sys
-import tempfile
 import time
+from dataclasses import dataclass
 
 import numpy as np
+
+from . import hand_collision
+from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
+from .object_grasps import mesh_sources, procedural_sources, read_name_list
+from .parallel import make_executor, run_tasks, task_seed
+from .scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
+from .voxel_labels import RESOLUTION
+
+VOXEL_M = VOLUME_SIZE_M / RESOLUTION
+OLD_SETTINGS = ("time_step_s=0.001",)                      # the v1 tables
+NEW_SETTINGS = ("time_step_s=0.001", "max_force_n=100", "force_ramp_rate_n_s=800")   # see label_settings_study
+
+
+@dataclass(frozen=True)
+class YieldTask:
+    source: object        # ObjectSource
+    sampler: str          # "free" | "resting"
+    count: int
+    seed: int
+    overrides: tuple
+
+
+def run_yield_task(task: YieldTask):
+    """Worker: resting poses, candidates, their simulation; CPU seconds of each part."""
+    from .datagen import sim_settings
+    from .grasp_simulation import GraspSimulator
+    from .resting_poses import find_resting_poses
+
+    obj = task.source.load()
+    mesh = obj.collision_mesh()
+    c0 = time.process_time()
+    rest = find_resting_poses(obj)
+    c1 = time.process_time()
+    seed = task_seed(task.seed, "bench", task.source.name)
+    if task.sampler == "free":
+        X = sample_grasp_candidates(mesh, task.count, seed)
+    else:
+        X, _ = sample_grasp_candidates_at_rest(mesh, rest, task.count, seed, SamplingSettings(sampler="resting"))
+    c2 = time.process_time()
+    sim = GraspSimulator(obj, sim_settings(task.overrides))
+    held = [sim.evaluate(x).grasped for x in X] if len(X) else []
+    c3 = time.process_time()
+    return dict(rest=rest, X=X, held=np.asarray(held, bool), rest_cpu_s=c1 - c0, sample_cpu_s=c2 - c1,
+                sim_cpu_s=c3 - c2)
+
+
+def table_free(X_object_tcp, rest):
+    """(P, N) bool: does grasp n clear the table (open hand + approach) in resting pose p?"""
+    out = np.zeros((len(rest), len(X_object_tcp)), bool)
+    for p in range(len(rest)):
+        X = rest.X_table_object[p][None] @ X_object_tcp
+        out[p] = ~hand_collision.collides(X, None, table_z_m=0.0, approach_m=0.05)
+    return out
+
+
+def voxels_per_scene(X_object_tcp, rest, rng, placements=20):
+    """Mean distinct labelled voxels of the table-free grasps over random placements
+    of the object (drawn resting pose, yaw, position) in the workspace."""
+    counts = []
+    for _ in range(placements):
+        p = rest.sample(rng, 1)[0]
+        a = rng.uniform(0, 2 * np.pi)
+        Y = np.eye(4)
+        Y[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        Y[:3, 3] = [*rng.uniform(0.08, VOLUME_SIZE_M - 0.08, 2), TABLE_HEIGHT_M]
+        X = (Y @ rest.X_table_object[p])[None] @ X_object_tcp
+        free = ~hand_collision.collides(X, None, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)
+        idx = np.floor(X[free, :3, 3] / VOXEL_M).astype(int)
+        idx = idx[((idx >= 0) & (idx < RESOLUTION)).all(1)]
+        counts.append(len({tuple(i) for i in idx}))
+    return float(np.mean(counts)) if counts else 0.0
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="bench_datagen", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--meshes", default=None, help="URDF directory (default: procedural objects only)")
-    p.add_argument("--objects", type=int, default=4)
-    p.add_argument("--grasps", type=int, default=4, help="grasps simulated per object")
-    p.add_argument("--scenes", type=int, default=6)
+    p.add_argument("--exclude", default=None, help="file of mesh names to leave out (the held-out test list)")
+    p.add_argument("--procedural", type=int, default=4, help="procedural objects")
+    p.add_argument("--mesh-objects", type=int, default=4, help="mesh objects (with --meshes)")
+    p.add_argument("--grasps", type=int, default=16, help="candidates simulated per object and sampler")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
-                   help="SimSettings override, as for datagen objects")
+    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--new-setting", action="append", default=None, metavar="KEY=VALUE",
+                   help=f"SimSettings of the resting column (default: {' '.join(NEW_SETTINGS)})")
+    p.add_argument("--json", default=None, help="also write the figures here")
     args = p.parse_args(argv)
 
-    from .antipodal_sampling import sample_grasp_candidates
-    from .datagen import run_object_stage, sim_settings
-    from .object_grasps import mesh_sources, procedural_sources
-    from .scene_dataset import SceneTask, _run_scene, usable_tables
-    from .scenes import arrange
+    sources = procedural_sources(args.procedural, 1000) if args.procedural else []
+    if args.meshes:
+        excluded = read_name_list(args.exclude) if args.exclude else set()
+        sources += [s for s in mesh_sources(args.meshes) if s.name not in excluded][:args.mesh_objects]
+    if not sources:
+        p.error("no objects: give --procedural N and/or --meshes DIR")
+    columns = {"free": tuple(OLD_SETTINGS), "resting": tuple(args.new_setting or NEW_SETTINGS)}
+    tasks = [YieldTask(s, sampler, args.grasps, args.seed, overrides)
+             for s in sources for sampler, overrides in columns.items()]
+    results = {}
 
-    settings = sim_settings(args.sim_setting)
-    sources = (mesh_sources(args.meshes)[:args.objects] if args.meshes
-               else procedural_sources(args.objects, args.seed))
-    objs = []
-    for s in sources:
-        try:
-            objs.append(s.load())
-        except Exception as e:
-            print(f"skip {s.name}: {e}")
-    t0, c0 = time.perf_counter(), time.process_time()
-    n = sum(len(sample_grasp_candidates(o.collision_mesh(), 64, args.seed)) for o in objs)
-    dt, dc = time.perf_counter() - t0, time.process_time() - c0
-    print(f"sampling: {n} candidates in {dt:.1f} s wall / {dc:.1f} s CPU = {n / dt:.0f} (wall) / "
-          f"{n / dc:.0f} (CPU) candidates/s")
+    def on_result(task, result):
+        results[(task.source.name, task.sampler)] = result
 
-    with tempfile.TemporaryDirectory() as tmp:
-        from concurrent.futures import ThreadPoolExecutor
+    t0 = time.perf_counter()
+    with make_executor(args.workers) as ex:
+        run_tasks(ex, run_yield_task, tasks, on_result, desc="bench_datagen")
+    wall = time.perf_counter() - t0
 
-        # one thread: the simulation runs here, serially, like one worker process
-        with ThreadPoolExecutor(1) as ex:
-            t0, c0 = time.perf_counter(), time.process_time()
-            run_object_stage(tmp, sources, args.grasps, args.seed, block_size=args.grasps,
-                             sim_settings=settings, executor=ex, progress=False)
-            dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        held_per_cpu_hour = None
-        tables = [np.load(p) for p in sorted(pathlib.Path(tmp, "objects").glob("*.npz"))]
-        sims = sum(len(t["mode"]) for t in tables)
-        held = sum(int(t["grasped"].sum()) for t in tables)
-        sim_time = sum(float(t["wall_time_s"].sum()) for t in tables)
-        print(f"object stage: {sims} grasps ({held} held) in {dt:.1f} s wall / {dc:.1f} s CPU = "
-              f"{3600 * sims / dt:.0f} (wall) / {3600 * sims / dc:.0f} (CPU) grasps/h per core; "
-              f"held grasps/h per core {3600 * held / dt:.0f} (wall) / {3600 * held / dc:.0f} (CPU)")
-        held_per_cpu_hour = 3600 * held / dc
-
+    figures = {}
+    for sampler, overrides in columns.items():
         rng = np.random.default_rng(args.seed)
-        for kind in ("packed", "pile"):
-            t0, c0 = time.perf_counter(), time.process_time()
-            for _ in range(3):
-                pick = rng.choice(len(objs), size=min(len(objs), 5), replace=False)
-                arrange([objs[i] for i in pick], kind, rng)
-            print(f"arrange {kind}: {(time.perf_counter() - t0) / 3:.2f} s wall / "
-                  f"{(time.process_time() - c0) / 3:.2f} s CPU per {min(len(objs), 5)}-object scene")
-
-        names = tuple(usable_tables(pathlib.Path(tmp, "objects")))
-        if not names:
-            print("scenes: no held grasp to build scenes from; raise --grasps")
-            return 0
-        t0, c0 = time.perf_counter(), time.process_time()
-        labels = 0
-        mesh_dirs = (args.meshes,) if args.meshes else ()
-        for i in range(args.scenes):
-            out = _run_scene(SceneTask(i, args.seed, str(pathlib.Path(tmp, "objects")), names, mesh_dirs))
-            labels += len(out["label_score"])
-        dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        print(f"scene stage: {args.scenes} scenes in {dt:.1f} s wall / {dc:.1f} s CPU = "
-              f"{60 * args.scenes / dt:.1f} (wall) / {60 * args.scenes / dc:.1f} (CPU) scenes/min per core "
-              f"({labels} labels)")
-        print(f"held_grasps_per_core_hour={held_per_cpu_hour:.0f} scenes_per_core_minute={60 * args.scenes / dc:.1f}")
+        held = sim_cpu = n = 0
+        free_frac, vox, per_obj = [], [], []
+        for s in sources:
+            r = results.get((s.name, sampler))
+            if r is None:
+                continue
+            X = r["X"][r["held"]] if len(r["X"]) else np.zeros((0, 4, 4))
+            n += len(r["X"])
+            held += len(X)
+            sim_cpu += r["sim_cpu_s"]
+            rest = r["rest"]
+            if len(X):
+                free_frac.append(float(rest.probability @ table_free(X, rest).mean(1)))
+            v = voxels_per_scene(X, rest, rng) if len(X) else 0.0
+            vox.append(v)
+            per_obj.append(v / max(r["sim_cpu_s"] / 3600, 1e-9))
+        figures[sampler] = dict(
+            settings=list(overrides), candidates=n, held=held,
+            held_per_cpu_hour=3600 * held / max(sim_cpu, 1e-9),
+            table_free_fraction=float(np.mean(free_frac)) if free_frac else 0.0,
+            voxels_per_object_per_scene=float(np.mean(vox)) if vox else 0.0,
+            labels_per_scene_per_cpu_hour=float(np.mean(per_obj)) if per_obj else 0.0,
+            sim_cpu_s=sim_cpu)
+    rest_cpu = np.mean([r["rest_cpu_s"] for (_, smp), r in results.items() if smp == "resting"])
+    print(f"{len(sources)} objects ({sum(s.kind == 'mesh' for s in sources)} meshes), {args.grasps} candidates "
+          f"per object and sampler, {wall:.0f} s wall; resting poses {rest_cpu:.1f} CPU s per object")
+    print(f"{'':34s} {'free (v1)':>14s} {'resting (v2)':>14s}")
+    rows = [("candidates simulated", "candidates", "{:.0f}"), ("held", "held", "{:.0f}"),
+            ("held grasps per CPU-hour", "held_per_cpu_hour", "{:.0f}"),
+            ("table-only collision-free", "table_free_fraction", "{:.1%}"),
+            ("labelled voxels per object/scene", "voxels_per_object_per_scene", "{:.1f}"),
+            ("labels per scene per CPU-hour", "labels_per_scene_per_cpu_hour", "{:.0f}")]
+    for label, key, fmt in rows:
+        print(f"{label:34s} {fmt.format(figures['free'][key]):>14s} {fmt.format(figures['resting'][key]):>14s}")
+    gain = figures["resting"]["labels_per_scene_per_cpu_hour"] / max(figures["free"]["labels_per_scene_per_cpu_hour"], 1e-9)
+    if args.json:
+        from . import atomic_files
+        atomic_files.save_json(args.json, dict(figures=figures, gain=gain, objects=[s.name for s in sources],
+                                               grasps=args.grasps, seed=args.seed))
+    print(f"labels_per_scene_per_cpu_hour_free={figures['free']['labels_per_scene_per_cpu_hour']:.0f}")
+    print(f"yield_gain={gain:.2f}")
+    print(f"labels_per_scene_per_cpu_hour={figures['resting']['labels_per_scene_per_cpu_hour']:.0f}")
     return 0
 
 

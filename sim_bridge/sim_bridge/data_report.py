@@ -4,8 +4,11 @@ DIR is a datagen output directory (with objects/ and optionally scenes/) or a
 directory of grasp tables.  Prints objects, simulated and successful grasps, mode
 split, skipped objects with their reasons, score statistics per mode, labels per
 scene; writes a PNG with the score histograms per mode and the labels per scene.
-The last three lines are machine-readable:
+Scenes are read from DIR/scenes or from --scenes (the tables are committed under
+models/, the scenes are regenerated under out/).  The last four lines are
+machine-readable:
   objects=<tables>   grasps=<successful grasps>   power_fraction=<power / successful>
+  labels_per_scene_median=<median voxel labels per scene, or n/a without scenes>
 """
 
 import argparse
@@ -24,7 +27,7 @@ def _tables_dir(d):
     return d / "objects" if (d / "objects").is_dir() else d
 
 
-def collect(data_dir):
+def collect(data_dir, scenes_dir=None):
     """Aggregate statistics of a data directory as a dict."""
     tdir = _tables_dir(data_dir)
     per_mode = {"power": [], "precision": []}
@@ -46,7 +49,9 @@ def collect(data_dir):
     for p in sorted(tdir.glob("*.skip.json")):
         stats["skipped"].append(json.loads(p.read_text()))
     stats["scores"] = {m: (np.concatenate(v) if v else np.zeros((0, 6))) for m, v in per_mode.items()}
-    sdir = pathlib.Path(data_dir) / "scenes"
+    sdir = pathlib.Path(scenes_dir) if scenes_dir else pathlib.Path(data_dir) / "scenes"
+    if (sdir / "scenes").is_dir():
+        sdir = sdir / "scenes"
     labels, fg, fg_mode, arrangements = [], [], [], []
     for p in sorted(sdir.glob("*.npz")) if sdir.is_dir() else []:
         with np.load(p) as z:
@@ -98,6 +103,7 @@ def report_text(s):
     lines.append(f"objects={s['objects']}")
     lines.append(f"grasps={g}")
     lines.append(f"power_fraction={power_fraction:.4f}")
+    lines.append(f"labels_per_scene_median={np.median(n):.0f}" if len(n) else "labels_per_scene_median=n/a")
     return "\n".join(lines)
 
 
@@ -132,12 +138,13 @@ def main(argv=None):
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", help="datagen output directory (objects/, scenes/) or a directory of grasp tables")
     p.add_argument("--png", default=None, help="write the histograms here (default: DATA/report.png)")
+    p.add_argument("--scenes", default=None, help="scene-stage output (default: DATA/scenes)")
     args = p.parse_args(argv)
     tdir = _tables_dir(args.data)
     if not tdir.is_dir():
         print(f"data_report: {args.data} is not a directory", file=sys.stderr)
         return 2
-    s = collect(args.data)
+    s = collect(args.data, args.scenes)
     if not s["objects"] and not s["skipped"]:
         print(f"data_report: no grasp tables (*.npz) in {tdir}", file=sys.stderr)
         return 2

@@ -17,6 +17,7 @@ shared path).
 import argparse
 import itertools
 import json
+import os
 import sys
 from concurrent.futures.process import BrokenProcessPool
 
@@ -24,31 +25,51 @@ import numpy as np
 
 from . import atomic_files
 from .objects import ObjectError
-from .object_grasps import (ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, run_chunk)
+from .object_grasps import (ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, read_name_list,
+                            run_chunk)
 from .parallel import make_executor, run_tasks
 
 
 def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, scheduler=None,
                      block_size=8, sim_settings=None, simulator_factory=None, progress=True,
-                     executor=None):
+                     executor=None, sampling=None):
     """Simulate `grasps_per_object` candidates (rounded up to whole blocks) of every
     source; returns a summary dict.  Finished tables and skip notes are kept, so
-    calling again resumes, and a larger `grasps_per_object` grows the tables."""
-    from .object_grasps import SamplingSettings
+    calling again resumes, and a larger `grasps_per_object` grows the tables.
+    With sampling.sampler == "resting" each object's resting poses are found first
+    (one task per object) and its candidates are drawn per resting pose."""
+    from .object_grasps import RestTask, SamplingSettings, run_rest_task
 
+    sampling = sampling or SamplingSettings()
     store = ObjectStageStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
     atomic_files.remove_stale_temporaries(store.dir)
     n_blocks = -(-grasps_per_object // block_size)
     if len({s.name for s in sources}) != len(sources):
         raise ValueError("object names must be unique")
-    sampling = SamplingSettings()
     # blocks that all finished before a kill but were not merged yet
     for s in sources:
         store.merge_if_complete(s, n_blocks, block_size, seed, sampling)
-    tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory)
-             for s in sources for c in store.pending_chunks(s.name, n_blocks, block_size)]
+
+    def run(fn, tasks, on_result, desc):
+        if not tasks:
+            return
+        if executor is not None:
+            run_tasks(executor, fn, tasks, on_result, desc=desc, progress=progress)
+        else:
+            with make_executor(workers, scheduler) as ex:
+                run_tasks(ex, fn, tasks, on_result, desc=desc, progress=progress)
+
     errors = {}
+
+    def on_rest(task, result):
+        status, payload = result
+        if status == "ok":
+            store.write_rest(task.source.name, payload)
+        elif status == "skip":
+            store.write_skip(task.source, payload)
+        else:
+            errors[task.source.name] = payload
 
     def on_result(task, result):
         status, payload = result
@@ -64,12 +85,21 @@ def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, sc
             store.write_part(task, rows, meta)
             store.merge_if_complete(task.source, n_blocks, block_size, seed, sampling)
 
-    if tasks:
-        if executor is not None:
-            run_tasks(executor, run_chunk, tasks, on_result, desc="object grasps", progress=progress)
-        else:
-            with make_executor(workers, scheduler) as ex:
-                run_tasks(ex, run_chunk, tasks, on_result, desc="object grasps", progress=progress)
+    resting = sampling.sampler == "resting"
+    # Resting poses, then grasps, a few objects at a time: finished tables appear early
+    # and a run stopped after hours has whole tables, not just everyone's resting poses.
+    step = 4 * (workers or os.cpu_count() or 1) if resting else len(sources)
+    for first in range(0, len(sources), max(1, step)):
+        group = sources[first:first + step]
+        if resting:
+            run(run_rest_task, [RestTask(s, sampling) for s in group
+                                if store.pending_chunks(s.name, n_blocks, block_size)
+                                and store.resting_poses(s.name) is None], on_rest, "resting poses")
+        tasks = [ObjectChunk(s, c, block_size, seed, sim_settings, sampling, simulator_factory,
+                             rest=store.resting_poses(s.name) if resting else None)
+                 for s in group if s.name not in errors
+                 for c in store.pending_chunks(s.name, n_blocks, block_size)]
+        run(run_chunk, tasks, on_result, "object grasps")
     summary = write_object_report(store, sources, errors)
     return summary
 
@@ -125,7 +155,8 @@ def sim_settings(overrides=()):
 
 
 def _object_sources(args):
-    groups = [mesh_sources(d, args.density) for d in args.meshes or []]
+    excluded = set().union(*[read_name_list(f) for f in args.exclude]) if args.exclude else set()
+    groups = [[s for s in mesh_sources(d, args.density) if s.name not in excluded] for d in args.meshes or []]
     if args.procedural:
         groups.append(procedural_sources(args.procedural, args.procedural_seed))
     # Round-robin over the sets, so that a run stopped early (or --limit) already has
@@ -151,6 +182,8 @@ def main(argv=None):
     o = sub.add_parser("objects", help="per-object grasp tables")
     common(o)
     o.add_argument("--meshes", action="append", help="directory of URDFs (VGN layout) or OBJs; repeatable")
+    o.add_argument("--exclude", action="append", default=[], metavar="FILE",
+                   help="leave out the meshes named in FILE (e.g. models/vgn_heldout_meshes.txt); repeatable")
     o.add_argument("--density", type=float, default=0.0,
                    help="kg/m^3 for bare OBJ files (URDFs carry their mass)")
     o.add_argument("--procedural", type=int, default=0, help="number of procedural objects")
@@ -162,6 +195,9 @@ def main(argv=None):
     o.add_argument("--limit", type=int, default=0, help="only the first N objects (after sorting)")
     o.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
                    help="override a grasp_simulation.SimSettings field, e.g. max_close_time_s=4 (repeatable)")
+    o.add_argument("--sampler", choices=("resting", "free"), default="resting",
+                   help="resting: candidates per resting pose on a table, approach inside the executor's "
+                        "cone (default); free: approach at any angle (the v1 dataset)")
 
     sc = sub.add_parser("scenes", help="scenes with TSDF and voxel labels from grasp tables")
     common(sc)
@@ -170,6 +206,9 @@ def main(argv=None):
     sc.add_argument("--scenes", type=int, required=True, help="number of scenes")
     sc.add_argument("--max-objects", type=int, default=5)
     sc.add_argument("--max-views", type=int, default=6)
+    sc.add_argument("--label-pose", choices=("commanded", "settled"), default="commanded",
+                    help="hand pose a label carries: the one the robot commands (default) or the one after "
+                         "the object settled in the hand (the v1 dataset)")
 
     args = p.parse_args(argv)
     try:
@@ -193,15 +232,19 @@ def _run(p, args):
             settings = sim_settings(args.sim_setting)
         except ValueError as e:
             p.error(str(e))
+        from .antipodal_sampling import SamplingSettings
+
         s = run_object_stage(args.out, sources, args.grasps_per_object, args.seed, args.workers, args.scheduler,
-                             block_size=args.block_size, sim_settings=settings, progress=not args.no_progress)
+                             block_size=args.block_size, sim_settings=settings, progress=not args.no_progress,
+                             sampling=SamplingSettings(sampler=args.sampler))
         print(f"objects: ok={s['ok']} skipped={s['skipped']} error={s['error']} pending={s['pending']} "
               f"(report: {ObjectStageStore(args.out).dir / 'report.json'})")
         return 1 if s["error"] else 0
     from .scene_dataset import run_scene_stage
 
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
-                        max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress)
+                        max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
+                        label_pose=args.label_pose)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
 

@@ -45,12 +45,7 @@ def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
     boxes[:, 1] += margin_m
     hit = np.zeros(len(X), dtype=bool)
     if table_z_m is not None:
-        # 8 corners of every box, in the world: a convex box is above the plane
-        # iff all its corners are.
-        corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(-1, 3)
-        pts = np.where(corners[None, :, :] == 0, boxes[:, None, 0, :], boxes[:, None, 1, :]).reshape(-1, 3)
-        z = np.einsum("nj,mj->nm", X[:, 2, :3], pts) + X[:, 2, 3][:, None]
-        hit |= (z < table_z_m).any(axis=1)
+        hit |= lowest_point_z(X, approach_m, margin_m) < table_z_m
     if points_world is not None and len(points_world):
         P = np.asarray(points_world, dtype=float)
         lo_all, hi_all = boxes[:, 0].min(0), boxes[:, 1].max(0)
@@ -66,6 +61,19 @@ def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
             inside = ((q[None] >= boxes[:, None, 0]) & (q[None] <= boxes[:, None, 1])).all(-1)
             hit[k] = inside.any()
     return hit
+
+
+def lowest_point_z(X_world_tcp, approach_m=0.0, margin_m=0.0):
+    """(N,) world height of the lowest point of the open hand (with its approach) at
+    each pose.  Shifting a pose by o along its own +z lowers it by -o * X[2, 2]."""
+    X = np.asarray(X_world_tcp, dtype=float).reshape(-1, 4, 4)
+    boxes = _swept_boxes(approach_m)
+    boxes[:, 0] -= margin_m
+    boxes[:, 1] += margin_m
+    # 8 corners of every box: a convex box is above a plane iff all its corners are
+    corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(-1, 3)
+    pts = np.where(corners[None, :, :] == 0, boxes[:, None, 0, :], boxes[:, None, 1, :]).reshape(-1, 3)
+    return (np.einsum("nj,mj->nm", X[:, 2, :3], pts) + X[:, 2, 3][:, None]).min(axis=1)
 
 
 def collides_along_approach(X_world_tcp, points_world, offsets_m, approach_m=0.0, margin_m=0.0):

@@ -10,6 +10,9 @@ One table per object, `<out>/objects/<name>.npz` (all arrays, no pickles):
   X_object_tcp           (N,4,4) float32   pose after the object settled in the hand
   scores_n               (N,6)   float32   disturbance rejection [N], +x -x +y -y +z -z (TCP)
   departed               (N,6)   bool      False: held up to SimSettings.max_force_n
+  rest_pose              (N,)    int16     resting pose the candidate was sampled for (-1: free sampler)
+  rest_X_table_object    (P,4,4) float64   resting poses on a table (resting_poses; P = 0: free sampler)
+  rest_probability       (P,)    float64   how often the object comes to rest in each
   mode                   (N,)    uint8     index into mode_names ("power", "precision", "none")
   grasped                (N,)    bool
   contacts               (N,)    uint16    bit k set = hand link contact_link_names[k] touched
@@ -39,10 +42,11 @@ import numpy as np
 import trimesh
 
 from . import atomic_files
-from .antipodal_sampling import SamplingSettings, sample_grasp_candidates
+from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
 from .hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
 from .objects import ObjectError, load_mesh_object, random_procedural_objects
 from .parallel import task_seed
+from .resting_poses import RestingPoses, find_resting_poses
 
 MODE_NAMES = ("power", "precision", "none")
 CONTACT_LINK_NAMES = PALM_LINKS + LEFT_LINKS + RIGHT_LINKS
@@ -105,6 +109,14 @@ def mesh_sources(mesh_dir, density_kg_m3=0.0):
     return [ObjectSource(p.stem, "mesh", path=str(p.resolve()), density_kg_m3=density_kg_m3) for p in files]
 
 
+def read_name_list(path):
+    """Object names of a list file (one per line, '#' comments), e.g. the held-out meshes."""
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise ObjectError(f"name list {p} does not exist")
+    return {line.split("#")[0].strip() for line in p.read_text().splitlines()} - {""}
+
+
 def procedural_sources(count, seed):
     return [ObjectSource(f"proc{seed}_{i:05d}", "procedural", proc_seed=seed, proc_count=count, proc_index=i)
             for i in range(count)]
@@ -146,6 +158,30 @@ class ObjectChunk:
     sim_settings: object = None          # SimSettings; None = defaults
     sampling: SamplingSettings = SamplingSettings()
     simulator_factory: object = None     # callable(obj, settings) -> .evaluate(X); None = Drake
+    rest: RestingPoses = None            # sampler "resting": the object's resting poses
+
+
+@dataclass(frozen=True)
+class RestTask:
+    """Find an object's resting poses (sampler "resting"), once, before its blocks."""
+
+    source: ObjectSource
+    sampling: SamplingSettings = SamplingSettings()
+
+
+def run_rest_task(task: RestTask):
+    """Worker: ("ok", RestingPoses) | ("skip", reason) | ("error", message)."""
+    try:
+        obj = task.source.load()
+    except ObjectError as e:
+        return "skip", str(e)
+    except Exception as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        return "skip", f"{task.source.name}: mesh cannot be loaded ({type(e).__name__}: {first})"
+    try:
+        return "ok", find_resting_poses(obj, min_probability=task.sampling.rest_min_probability)
+    except Exception as e:  # qhull on a degenerate hull: the object cannot lie on a table
+        return "skip", f"{task.source.name}: no resting pose found ({type(e).__name__}: {e})"
 
 
 def shape_sha256(spec):
@@ -157,10 +193,6 @@ def shape_sha256(spec):
               np.round([spec.mass_kg], 9), np.round(np.asarray(spec.com_m, float), 6)):
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
-
-
-def object_seed(master_seed, name):
-    return task_seed(master_seed, "object", name)
 
 
 def block_seed(master_seed, name, block):
@@ -190,13 +222,20 @@ def _run_chunk(task, obj):
 
     settings = task.sim_settings or SimSettings()
     seed = block_seed(task.master_seed, task.source.name, task.chunk)
-    X = sample_grasp_candidates(obj.collision_mesh(), task.size, seed, task.sampling)
+    if task.sampling.sampler == "resting":
+        X, rest_pose = sample_grasp_candidates_at_rest(obj.collision_mesh(), task.rest, task.size, seed, task.sampling)
+    else:
+        X = sample_grasp_candidates(obj.collision_mesh(), task.size, seed, task.sampling)
+        rest_pose = np.full(len(X), -1)
     factory = task.simulator_factory or GraspSimulator
     sim = factory(obj, settings) if len(X) else None
-    rows = [_evaluate(sim, x) for x in X]
+    rows = [dict(_evaluate(sim, x), rest_pose=np.int16(k)) for x, k in zip(X, rest_pose)]
+    rest = task.rest
     meta = dict(mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
                 shape_sha256=shape_sha256(obj),
-                sim_settings=json.dumps(dataclasses.asdict(settings), sort_keys=True))
+                sim_settings=json.dumps(dataclasses.asdict(settings), sort_keys=True),
+                rest_X_table_object=rest.X_table_object if rest is not None else np.zeros((0, 4, 4)),
+                rest_probability=rest.probability if rest is not None else np.zeros(0))
     return "ok", (rows, meta)
 
 
@@ -251,6 +290,24 @@ class ObjectStageStore:
     def part_path(self, name, chunk):
         return self.parts / name / f"{chunk:05d}.npz"
 
+    def rest_path(self, name):
+        return self.parts / name / "resting_poses.npz"
+
+    def resting_poses(self, name):
+        """The object's resting poses (from its table, else from the rest stage), or None."""
+        for p in (self.table_path(name), self.rest_path(name)):
+            if p.exists():
+                with np.load(p) as z:
+                    if "rest_probability" in z.files and len(z["rest_probability"]):
+                        return RestingPoses(z["rest_X_table_object"], z["rest_probability"],
+                                            z["rest_confirmed"] if "rest_confirmed" in z.files
+                                            else np.ones(len(z["rest_probability"]), bool))
+        return None
+
+    def write_rest(self, name, rest: RestingPoses):
+        atomic_files.save_npz(self.rest_path(name), rest_X_table_object=rest.X_table_object,
+                              rest_probability=rest.probability, rest_confirmed=rest.confirmed)
+
     def blocks_done(self, name, block_size):
         """Blocks already merged into the object's table (0 if none)."""
         if not self.table_path(name).exists():
@@ -266,6 +323,9 @@ class ObjectStageStore:
             return []
         first = self.blocks_done(name, block_size)
         return [c for c in range(first, n_chunks) if not self.part_path(name, c).exists()]
+
+    def has_rest_file(self, name):
+        return self.rest_path(name).exists()
 
     def write_part(self, task: ObjectChunk, rows, meta):
         arrays = _stack_rows(rows)
@@ -304,7 +364,9 @@ class ObjectStageStore:
             return True
         table = {}
         for key in ROW_KEYS:
-            table[key] = np.concatenate([p[key] for p in parts])
+            # tables made before the resting-pose sampler have no rest_pose column
+            table[key] = np.concatenate([p[key] if key in p else np.full(len(p["mode"]), -1, np.int16)
+                                         for p in parts])
         # chunks may have seen different joints (a failed closure reports none): align
         names = sorted({str(n) for p in parts for n in p["finger_joint_names"]})
         angles = np.full((len(table["mode"]), len(names)), np.nan, np.float32)
@@ -324,6 +386,8 @@ class ObjectStageStore:
             block_size=np.asarray(block_size), n_blocks=np.asarray(n_chunks),
             mass_kg=meta["meta_mass_kg"], com_m=meta["meta_com_m"], sim_settings=meta["meta_sim_settings"],
             shape_sha256=meta["meta_shape_sha256"],
+            rest_X_table_object=meta.get("meta_rest_X_table_object", np.zeros((0, 4, 4))),
+            rest_probability=meta.get("meta_rest_probability", np.zeros(0)),
             sampling_settings=np.asarray(json.dumps(dataclasses.asdict(sampling), sort_keys=True)),
             mode_names=np.asarray(MODE_NAMES), contact_link_names=np.asarray(CONTACT_LINK_NAMES),
         )
@@ -337,7 +401,7 @@ class ObjectStageStore:
 
 
 ROW_KEYS = ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "departed", "mode", "grasped",
-            "contacts", "reason", "wall_time_s")
+            "contacts", "reason", "wall_time_s", "rest_pose")
 
 
 def _stack_rows(rows):
@@ -346,7 +410,8 @@ def _stack_rows(rows):
         out.update(X_object_tcp_candidate=np.zeros((0, 4, 4), np.float32), X_object_tcp=np.zeros((0, 4, 4), np.float32),
                    scores_n=np.zeros((0, 6), np.float32), departed=np.zeros((0, 6), bool),
                    mode=np.zeros(0, np.uint8), grasped=np.zeros(0, bool), contacts=np.zeros(0, np.uint16),
-                   reason=np.zeros(0, "<U1"), wall_time_s=np.zeros(0, np.float32))
+                   reason=np.zeros(0, "<U1"), wall_time_s=np.zeros(0, np.float32),
+                   rest_pose=np.zeros(0, np.int16))
     names = sorted({k for r in rows for k in r["finger_joint_angles"]})
     out["finger_joint_names"] = np.asarray(names, dtype=str) if names else np.zeros(0, "<U1")
     out["finger_joint_angles"] = np.asarray(

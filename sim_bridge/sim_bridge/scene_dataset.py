@@ -2,14 +2,19 @@
 
 For scene i (seed from --seed and i only):
 1. draw 1..max_objects objects among those whose grasp table has a successful grasp,
-   and "packed" or "pile"; settle them on the table in Drake (scenes.arrange);
+   and "packed" or "pile"; settle them on the table in Drake (scenes.arrange;
+   packed objects start in a resting pose of their table, see resting_poses);
 2. render 1..max_views depth images from random views on the upper hemisphere
    (Open3D ray casting of the posed visual meshes and the table) and fuse them into
    the 40^3 TSDF of the 0.30 m workspace;
 3. project every successful grasp of every object by the object's pose
-   (X_task_tcp = X_task_object X_object_tcp, the settled hand pose);
+   (X_task_tcp = X_task_object X_object_tcp).  label_pose "commanded" (default)
+   uses the pose the hand was driven to (X_object_tcp_candidate): the pose the
+   robot will command, so labels and execution agree about the approach;
+   "settled" uses the hand pose after the object settled in it (the v1 dataset);
 4. drop a grasp if the open hand at that pose, or on its last `approach_m` of
-   straight approach, intersects the table or another object;
+   straight approach, intersects the table or another object (and, for
+   commanded poses, the grasped object itself);
 5. f_g from the 6 disturbance scores and the scene gravity (paper Eq. 1);
 6. label the TCP voxel of each grasp (best f_g per voxel).
 
@@ -34,6 +39,7 @@ from . import atomic_files, hand_collision
 from .gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
 from .object_grasps import MODE_NAMES, load_table, object_from_table
 from .parallel import make_executor, run_tasks, task_seed
+from .resting_poses import RestingPoses
 from .scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from .voxel_labels import RESOLUTION, voxel_labels
 
@@ -53,6 +59,7 @@ class SceneTask:
     max_views: int = 6
     approach_m: float = APPROACH_M
     settings: SceneSettings = SceneSettings()
+    label_pose: str = "commanded"   # | "settled"
 
 
 def usable_tables(objects_dir):
@@ -85,7 +92,7 @@ def _run_scene(task):
         pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
         tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
         specs = [object_from_table(t, task.mesh_dirs) for t in tables]
-        keep, poses = arrange(specs, arrangement, rng, task.settings)
+        keep, poses = arrange(specs, arrangement, rng, task.settings, rest=[_resting_poses(t) for t in tables])
         tables = [tables[i] for i in keep]
         specs = [specs[i] for i in keep]
         if keep:
@@ -112,9 +119,12 @@ def _run_scene(task):
     n_projected = 0
     for k, (t, X_obj) in enumerate(zip(tables, poses)):
         rows = np.flatnonzero(t["grasped"])
-        X = X_obj[None] @ t["X_object_tcp"][rows].astype(np.float64)
+        key = "X_object_tcp_candidate" if task.label_pose == "commanded" else "X_object_tcp"
+        X = X_obj[None] @ t[key][rows].astype(np.float64)
         n_projected += len(rows)
-        others = np.concatenate([p for j, p in enumerate(points) if j != k]) if len(points) > 1 else None
+        # the settled hand touches its object by definition; a commanded pose must clear it
+        obstacles = [p for j, p in enumerate(points) if j != k or task.label_pose == "commanded"]
+        others = np.concatenate(obstacles) if obstacles else None
         free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
         X, rows = X[free], rows[free]
         X_all.append(X)
@@ -141,8 +151,17 @@ def _run_scene(task):
         n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
         table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
         gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
+        label_pose=np.asarray(task.label_pose),
         mode_names=np.asarray(MODE_NAMES), seed=np.asarray(task_seed(task.master_seed, "scene", task.index), np.uint64),
     )
+
+
+def _resting_poses(table):
+    """The table's RestingPoses, or None (tables of the free sampler have none)."""
+    if "rest_probability" in table and len(table["rest_probability"]):
+        p = np.asarray(table["rest_probability"], float)
+        return RestingPoses(np.asarray(table["rest_X_table_object"], float), p, np.ones(len(p), bool))
+    return None
 
 
 _VISUAL_CACHE = {}
@@ -166,7 +185,8 @@ class SceneStore:
 
 
 def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
-                    max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings()):
+                    max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings(),
+                    label_pose="commanded"):
     """Generate scenes 0..n_scenes-1 that do not exist yet; returns a summary dict."""
     objects_dir = pathlib.Path(objects_out_dir) / "objects"
     names = tuple(usable_tables(objects_dir))
@@ -176,7 +196,9 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     store.dir.mkdir(parents=True, exist_ok=True)
     atomic_files.remove_stale_temporaries(store.dir)
     # the object pool must not change under a resumed run, or scene i would differ
-    manifest = dict(seed=seed, max_objects=max_objects, max_views=max_views,
+    if label_pose not in ("commanded", "settled"):
+        raise ValueError(f"label_pose {label_pose!r}: use 'commanded' or 'settled'")
+    manifest = dict(seed=seed, max_objects=max_objects, max_views=max_views, label_pose=label_pose,
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names))
@@ -190,7 +212,7 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     else:
         atomic_files.save_json(mpath, manifest)
     tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
-                       settings=settings)
+                       settings=settings, label_pose=label_pose)
              for i in range(n_scenes) if not store.path(i).exists()]
     errors = []
 

@@ -5,9 +5,10 @@ cube (the TSDF volume).  The table top is the plane z = TABLE_HEIGHT_M = 0.05 m
 inside the cube (as in VGN), leaving 0.25 m above it for objects.
 
 Arrangements (as VGN's):
-- "packed": objects upright (object-frame z up, random yaw) placed side by side
-  on the table without overlapping footprints, then settled (tall thin ones may
-  tip over; that is physics).
+- "packed": objects in one of their resting poses (drawn by probability, see
+  resting_poses; upright, object-frame z up, for objects without any), random
+  yaw, placed side by side on the table without overlapping footprints, then
+  settled (tall thin ones may tip over; that is physics).
 - "pile": objects at random orientations dropped from staggered heights above
   the table centre and settled.
 Objects that end up outside the workspace are removed and the rest settled again.
@@ -139,15 +140,18 @@ def _pose(R, p):
     return X
 
 
-def packed_poses(meshes, rng, settings=SceneSettings()):
-    """Upright, non-overlapping placements on the table: list of 4x4 or None (no room)."""
+def packed_poses(meshes, rng, settings=SceneSettings(), rest=None):
+    """Non-overlapping placements on the table: list of 4x4 or None (no room).
+    rest: per mesh a resting_poses.RestingPoses (one is drawn) or None (upright)."""
     lo, hi = settings.margin_m, VOLUME_SIZE_M - settings.margin_m
     placed = []  # (xy, radius)
     out = []
-    for mesh in meshes:
+    for k, mesh in enumerate(meshes):
         pose = None
+        r = rest[k] if rest is not None else None
+        R_rest = r.X_table_object[r.sample(rng, 1)[0], :3, :3] if r is not None and len(r) else np.eye(3)
         for _ in range(50):
-            R = _yaw(rng.uniform(0, 2 * np.pi))
+            R = _yaw(rng.uniform(0, 2 * np.pi)) @ R_rest
             v = mesh.vertices @ R.T
             center_xy = (v[:, :2].max(0) + v[:, :2].min(0)) / 2
             radius = np.linalg.norm(v[:, :2] - center_xy, axis=1).max()
@@ -188,8 +192,9 @@ def in_workspace(mesh, X, settings=SceneSettings()):
                 and v[:, 2].min() >= TABLE_HEIGHT_M - 0.01 and v[:, 2].max() <= VOLUME_SIZE_M)
 
 
-def arrange(objects, arrangement, rng, settings=SceneSettings()):
-    """Place and settle `objects` (ObjectSpec list).
+def arrange(objects, arrangement, rng, settings=SceneSettings(), rest=None):
+    """Place and settle `objects` (ObjectSpec list); rest: per object its
+    RestingPoses or None (used by "packed").
 
     Returns (kept indices into objects, their settled X_task_object list).
     Objects that found no room or left the workspace are dropped.
@@ -197,7 +202,8 @@ def arrange(objects, arrangement, rng, settings=SceneSettings()):
     if arrangement not in ARRANGEMENTS:
         raise ValueError(f"arrangement {arrangement!r}: use one of {ARRANGEMENTS}")
     meshes = [o.collision_mesh() for o in objects]
-    poses = packed_poses(meshes, rng, settings) if arrangement == "packed" else pile_poses(meshes, rng, settings)
+    poses = (packed_poses(meshes, rng, settings, rest) if arrangement == "packed"
+             else pile_poses(meshes, rng, settings))
     keep = [i for i, X in enumerate(poses) if X is not None]
     if arrangement == "pile" and keep:
         # drop inside the temporary box, then remove it and let the pile relax

@@ -1,0 +1,164 @@
+"""One parameter file for the cell: what `stack` derives from it and checks in it. No rclpy.
+
+A cell file is an ordinary ROS 2 `--params-file` YAML with a section per node (`tsdf`,
+`detect`, `execute`, `ur_arm`, `sim`, `calibrate_camera`, ...) plus a `stack` section
+for what concerns several nodes at once:
+
+    stack:
+      ros__parameters:
+        arm_adapter: ur                # 'service' (move_to_pose served by another process:
+                                       # the sim bridge, your own adapter) or 'ur' (ur_arm in the stack)
+        workspace_origin_in_base: [0.35, -0.15, 0.02, 1.5708]   # the task frame's origin (the
+                                       # workspace corner) in the robot base frame: x, y, z [m],
+                                       # yaw [rad], as the pendant shows the TCP touching it
+        object_mass_kg: 0.5            # heaviest object expected -> detect.min_score_n
+        score_safety_factor: 1.5       # min_score_n = mass x g x factor
+
+Derived: `workspace_origin_in_base` -> `execute.arm_base_xyz_yaw` and
+`ur_arm.base_xyz_yaw` (the robot base in the task frame, its inverse), so the one
+measurement feeds both; `object_mass_kg` -> `detect.min_score_n`. Giving a derived
+parameter directly as well is a conflict, refused with a sentence.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import numpy as np
+
+G_MPS2 = 9.81
+ARM_ADAPTERS = ("service", "ur")
+
+
+class CellConfigError(ValueError):
+    """A cell file problem; the message says what to change."""
+
+
+def params_files(argv) -> list[pathlib.Path]:
+    """The --params-file paths among ROS arguments."""
+    out, ros = [], False
+    for i, arg in enumerate(argv):
+        if arg == "--ros-args":
+            ros = True
+        elif arg == "--":
+            ros = False
+        elif ros and arg == "--params-file" and i + 1 < len(argv):
+            out.append(pathlib.Path(argv[i + 1]))
+    return out
+
+
+def _flatten(values: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def load_sections(paths) -> dict:
+    """{node name: {parameter: value}} over all files (later files win), node names
+    without a leading '/'; wildcard sections ('/**') are kept under '**'."""
+    import yaml
+
+    sections: dict = {}
+    for path in paths:
+        try:
+            data = yaml.safe_load(pathlib.Path(path).read_text()) or {}
+        except FileNotFoundError:
+            raise CellConfigError(f"parameter file {path} does not exist") from None
+        except yaml.YAMLError as e:
+            raise CellConfigError(f"parameter file {path} is not valid YAML: {e}") from None
+        if not isinstance(data, dict):
+            raise CellConfigError(f"parameter file {path}: expected 'node_name: ros__parameters: ...' sections")
+        for node, body in data.items():
+            name = str(node).lstrip("/")
+            params = (body or {}).get("ros__parameters") if isinstance(body, dict) else None
+            if not isinstance(params, dict):
+                raise CellConfigError(f"parameter file {path}: section {node!r} has no 'ros__parameters:' mapping")
+            sections.setdefault(name, {}).update(_flatten(params))
+    return sections
+
+
+def base_in_task(workspace_origin_in_base) -> list[float]:
+    """[x, y, z, yaw] of the task origin in the base frame -> the base in the task frame."""
+    x, y, z, yaw = (float(v) for v in workspace_origin_in_base)
+    c, s = math.cos(yaw), math.sin(yaw)
+    # X_task_base = inv(X_base_task): rotation -yaw, translation -R^T p
+    return [-(c * x + s * y), -(-s * x + c * y), -z, -yaw]
+
+
+@dataclasses.dataclass
+class StackPlan:
+    arm_adapter: str
+    overrides: list            # ['-p', 'node:name:=value', ...] appended to the ROS arguments
+    notes: list                # one line each, logged at start
+
+
+def _fmt(value) -> str:
+    if isinstance(value, list):
+        return "[" + ",".join(repr(float(v)) for v in value) + "]"
+    return repr(float(value))
+
+
+def plan(stack: dict, sections: dict) -> StackPlan:
+    """Derived parameters and conflicts from the stack section's values (as declared by
+    the stack node: arm_adapter, workspace_origin_in_base, object_mass_kg, score_safety_factor)."""
+    adapter = stack["arm_adapter"]
+    if adapter not in ARM_ADAPTERS:
+        raise CellConfigError(f"stack.arm_adapter is {adapter!r}: use 'service' (another process serves move_to_pose, "
+                              "e.g. the sim bridge) or 'ur' (the UR adapter runs in the stack)")
+    overrides, notes = [], []
+    origin = list(stack["workspace_origin_in_base"])
+    if any(origin):
+        if len(origin) != 4 or not all(math.isfinite(v) for v in origin):
+            raise CellConfigError(f"stack.workspace_origin_in_base must be [x, y, z (m), yaw (rad)], got {origin}")
+        for node, name in (("execute", "arm_base_xyz_yaw"), ("ur_arm", "base_xyz_yaw")):
+            if name in sections.get(node, {}):
+                raise CellConfigError(f"{node}.{name} and stack.workspace_origin_in_base both place the robot: "
+                                      f"keep one (workspace_origin_in_base sets {node}.{name})")
+        base = base_in_task(origin)
+        overrides += ["-p", f"execute:arm_base_xyz_yaw:={_fmt(base)}", "-p", f"ur_arm:base_xyz_yaw:={_fmt(base)}"]
+        notes.append(f"workspace origin {origin} in the base frame -> robot base {np.round(base, 4).tolist()} "
+                     "(x, y, z, yaw) in the task frame for execute and ur_arm")
+    mass, factor = float(stack["object_mass_kg"]), float(stack["score_safety_factor"])
+    if mass > 0:
+        if "min_score_n" in sections.get("detect", {}):
+            raise CellConfigError("detect.min_score_n and stack.object_mass_kg both set the score threshold: keep one")
+        if factor < 1.0:
+            raise CellConfigError(f"stack.score_safety_factor {factor} is below 1: a grasp must hold at least the weight")
+        min_score = mass * G_MPS2 * factor
+        overrides += ["-p", f"detect:min_score_n:={_fmt(min_score)}"]
+        notes.append(f"object mass {mass:g} kg x {G_MPS2} m/s^2 x {factor:g} -> detect.min_score_n {min_score:.2f} N")
+    elif mass < 0:
+        raise CellConfigError(f"stack.object_mass_kg is {mass}: give the heaviest object's mass in kg (0 = no threshold from it)")
+    return StackPlan(adapter, overrides, notes)
+
+
+def check_consistency(execute_params: dict, ur_params: dict | None) -> None:
+    """With the UR adapter in the stack: the executor's arm model must be the arm's."""
+    if ur_params is None:
+        return
+    base_e, base_u = execute_params["arm_base_xyz_yaw"], ur_params["base_xyz_yaw"]
+    if not np.allclose(base_e, base_u, atol=1e-6):
+        raise CellConfigError(f"execute.arm_base_xyz_yaw {list(base_e)} and ur_arm.base_xyz_yaw {list(base_u)} differ: "
+                              "they are the same robot base (set stack.workspace_origin_in_base to give it once)")
+    tcp_e, tcp_u = execute_params["tcp_offset_m"], ur_params["tcp_in_flange"]
+    if abs(tcp_e - tcp_u[2]) > 1e-3 or any(abs(v) > 1e-3 for v in tcp_u[:2]):
+        raise CellConfigError(f"execute.tcp_offset_m {tcp_e} (the reachability model's flange -> TCP distance) and "
+                              f"ur_arm.tcp_in_flange {list(tcp_u)} disagree: set both to the gripper's TCP "
+                              "(2F-85: 0.1558 m along the flange z)")
+
+
+def unknown_parameters(sections: dict, declared: dict) -> list[str]:
+    """'node.name' for each parameter the file gives a node of this process that the node
+    does not declare (a typo would otherwise be ignored silently)."""
+    out = []
+    for node, names in declared.items():
+        for name in sections.get(node, {}):
+            if name not in names and not name.startswith("qos_overrides."):
+                out.append(f"{node}.{name}")
+    return out

@@ -1,0 +1,278 @@
+"""`ros2 run gravgrasp_detector ur_arm`: a Universal Robots arm as the executor's arm.
+
+    ros2 run gravgrasp_detector ur_arm --ros-args -p robot_ip:=192.168.1.102
+
+Serves the same interface as the Drake sim bridge, so the executor cannot tell them apart:
+
+| name | type | |
+| --- | --- | --- |
+| `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion (moveL) to a pose in `frame_id`; `check_only` asks the controller (safety limits, IK) without moving |
+| `stop_motion` | std_srvs/Trigger | halts the running motion at once (stopL; its `move_to_pose` answers `success: false`) |
+| `~/reconnect` | std_srvs/Trigger | drop the RTDE connection and build it again |
+| `flange_pose` | geometry_msgs/PoseStamped | the tool flange in `frame_id`, at `state_rate_hz` (calibrate_camera's robot poses) |
+| `camera_pose` | geometry_msgs/PoseStamped | only with `camera_in_flange` set (a camera on the wrist): its optical frame in `frame_id`, for the tsdf node; sensor-data QoS |
+
+A thin adapter around `ur_arm.URArm` (frames, limits, stop, timeouts; see there) over
+ur_rtde's RTDEControlInterface/RTDEReceiveInterface. The node keeps serving while the
+robot is unreachable: requests are answered with why, and it reconnects every
+`reconnect_period_s`. Once serving it logs ``ur_arm ready``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import numpy as np
+import rclpy
+from gravgrasp_msgs.srv import MoveToPose
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from geometry_msgs.msg import PoseStamped
+from scipy.spatial.transform import Rotation
+from std_srvs.srv import Trigger
+
+from .ur_arm import FLANGE_TO_TCP_2F85_M, ConnectionLost, URArm, URArmSettings, xyz_yaw_to_matrix
+
+UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > System > Network), that the robot "
+                    "is in Remote Control (e-Series), and that no other program holds its RTDE interface")
+
+
+def rtde_connect(robot_ip: str, frequency_hz: float):
+    """connect() for URArm over the real ur_rtde (imported here: the core needs no ur_rtde)."""
+    def connect():
+        try:
+            import rtde_control
+            import rtde_receive
+        except ImportError as e:
+            raise RuntimeError(f"ur_rtde is not installed ({e}): pip install ur-rtde==1.6.5") from None
+        receive = rtde_receive.RTDEReceiveInterface(robot_ip, frequency_hz)
+        try:
+            control = rtde_control.RTDEControlInterface(robot_ip, frequency_hz)
+        except RuntimeError as e:  # e.g. the pendant in Local mode: watch the arm, do not move it
+            return None, receive, f"{e}".strip()
+        return control, receive
+    return connect
+
+
+def _pose_stamped(X, stamp, frame_id) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.stamp, msg.header.frame_id = stamp, frame_id
+    p, q = msg.pose.position, msg.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in X[:3, 3])
+    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(X[:3, :3]).as_quat())
+    return msg
+
+
+def _float(text, low, high):
+    return ParameterDescriptor(description=text, read_only=True,
+                               floating_point_range=[FloatingPointRange(from_value=float(low), to_value=float(high))])
+
+
+def _text(text):
+    return ParameterDescriptor(description=text, read_only=True)
+
+
+class URArmNode(Node):
+    def __init__(self, connect=None, **node_options):
+        """`connect`: () -> (control, receive); default: ur_rtde to `robot_ip`."""
+        super().__init__("ur_arm", **node_options)
+        p = lambda name, default, d: self.declare_parameter(name, default, d).value  # noqa: E731
+        defaults = URArmSettings()
+        self.robot_ip = p("robot_ip", "", _text("IP address of the UR controller (pendant: Settings > System > Network)"))
+        frequency = p("rtde_frequency_hz", -1.0, _float("RTDE frequency, Hz; -1 = the controller's (500 on e-Series)", -1.0, 500.0))
+        self.frame_id = p("frame_id", "task", _text("frame of move_to_pose targets (the gravity-aligned task frame)"))
+        base = p("base_xyz_yaw", [0.15, -0.45, 0.0, 0.0], _text(
+            "robot base frame in the task frame: x, y, z [m], yaw [rad] (base mounted upright); "
+            "the same numbers as execute's arm_base_xyz_yaw"))
+        tcp = p("tcp_in_flange", [0.0, 0.0, FLANGE_TO_TCP_2F85_M, 0.0, 0.0, 0.0], _text(
+            "TCP in the tool flange frame as a UR pose [x, y, z (m), rx, ry, rz (rotation vector, rad)], set on "
+            "the controller with setTcp: 2F-85 pinch point 0.1558 m out; TCP y must be the fingers' closing axis"))
+        ws_min = p("workspace_min_m", list(defaults.workspace_min_m), _text(
+            "protective box minimum [x, y, z], task frame, m: TCP targets outside the box are refused"))
+        ws_max = p("workspace_max_m", list(defaults.workspace_max_m), _text("protective box maximum [x, y, z], task frame, m"))
+        settings = URArmSettings(
+            X_task_base=xyz_yaw_to_matrix(base),
+            tcp_in_flange=tuple(tcp),
+            workspace_min_m=tuple(ws_min), workspace_max_m=tuple(ws_max),
+            default_speed_mps=p("default_speed_mps", defaults.default_speed_mps, _float("TCP speed when a request gives 0, m/s", 0.001, 1.0)),
+            max_speed_mps=p("max_speed_mps", defaults.max_speed_mps, _float("TCP speed cap, m/s (faster requests are capped)", 0.001, 1.0)),
+            acceleration_mps2=p("acceleration_mps2", defaults.acceleration_mps2, _float("moveL tool acceleration, m/s^2", 0.01, 5.0)),
+            stop_deceleration_mps2=p("stop_deceleration_mps2", defaults.stop_deceleration_mps2, _float("stopL tool deceleration, m/s^2", 0.1, 10.0)),
+            call_timeout_s=p("call_timeout_s", defaults.call_timeout_s, _float("longest wait for one RTDE call; longer = lost link, s", 0.05, 60.0)),
+            connect_timeout_s=p("connect_timeout_s", defaults.connect_timeout_s, _float("longest wait for connecting (uploads the control script), s", 0.1, 120.0)),
+            motion_timeout_margin_s=p("motion_timeout_margin_s", defaults.motion_timeout_margin_s, _float("added to a motion's expected time before it is stopped, s", 0.0, 600.0)),
+            position_tolerance_m=p("position_tolerance_m", defaults.position_tolerance_m, _float("arrived = TCP this close to the target, m", 1e-5, 0.1)),
+            orientation_tolerance_deg=p("orientation_tolerance_deg", defaults.orientation_tolerance_deg, _float("arrived = TCP this well aligned, deg", 0.01, 30.0)),
+            payload_kg=p("payload_kg", 0.0, _float("> 0: setPayload on connect (2F-85: 0.925 kg); 0 = keep the pendant's payload", 0.0, 20.0)),
+            payload_cog_m=tuple(p("payload_cog_m", [0.0, 0.0, 0.0], _text("payload centre of gravity in the flange frame [x, y, z], m"))),
+        )
+        camera = p("camera_in_flange", [0.0] * 7, _text(
+            "eye-in-hand camera: its optical frame in the flange frame [x, y, z (m), qx, qy, qz, qw] as "
+            "calibrate_camera writes it; all zeros = no camera on the arm (camera_pose is not published)"))
+        self.X_flange_camera = None
+        if any(camera):
+            if len(camera) != 7 or abs(np.linalg.norm(camera[3:]) - 1.0) > 1e-3:
+                raise ValueError(f"camera_in_flange must be [x, y, z, qx, qy, qz, qw] with a unit quaternion, got {list(camera)}")
+            self.X_flange_camera = np.eye(4)
+            self.X_flange_camera[:3, :3] = Rotation.from_quat(camera[3:]).as_matrix()
+            self.X_flange_camera[:3, 3] = camera[:3]
+        state_rate = p("state_rate_hz", 30.0, _float("flange_pose (and camera_pose) rate, Hz", 0.5, 250.0))
+        self.reconnect_period_s = p("reconnect_period_s", 5.0, _float("retry period while the robot is unreachable, s", 0.1, 600.0))
+        if connect is None:
+            if not self.robot_ip:
+                raise ValueError("robot_ip is empty: set it to the UR controller's address, e.g. -p robot_ip:=192.168.1.102")
+            connect = rtde_connect(self.robot_ip, frequency)
+        self.where = f"the UR controller at {self.robot_ip or 'the injected interfaces'}"
+        self.arm = URArm(connect, settings, log=self.get_logger().info)
+        self._last_problem = None
+        self._last_problem_t = -math.inf
+        self._last_status = None
+
+        services = ReentrantCallbackGroup()
+        self.create_service(MoveToPose, "move_to_pose", self._guarded(self._on_move), callback_group=services)
+        self.create_service(Trigger, "stop_motion", self._guarded(self._on_stop), callback_group=services)
+        self.create_service(Trigger, "~/reconnect", self._guarded(self._on_reconnect), callback_group=services)
+        self.create_timer(self.reconnect_period_s, self._keep_connected, callback_group=MutuallyExclusiveCallbackGroup())
+        self.pub_flange = self.create_publisher(PoseStamped, "flange_pose", 10)
+        self.pub_camera = (self.create_publisher(PoseStamped, "camera_pose", qos_profile_sensor_data)
+                           if self.X_flange_camera is not None else None)
+        self.create_timer(1.0 / state_rate, self._publish_state, callback_group=MutuallyExclusiveCallbackGroup())
+        self._first = self.create_timer(0.01, self._connect_first, callback_group=MutuallyExclusiveCallbackGroup())
+        self.get_logger().info(
+            f"ur_arm ready: move_to_pose and stop_motion for {self.where}, targets in '{self.frame_id}', "
+            f"TCP {list(np.round(settings.tcp_in_flange, 4))} in the flange, speed <= {settings.max_speed_mps} m/s, "
+            f"box {list(ws_min)}..{list(ws_max)} m")
+
+    # -- connection -----------------------------------------------------------------
+
+    def _connect_first(self):
+        self._first.cancel()
+        self._keep_connected()
+
+    def _keep_connected(self):
+        try:
+            status = self.arm.keep_connected()
+        except ConnectionLost as e:
+            self._problem(f"cannot reach {self.where}: {e}; {UNREACHABLE_HINT}; retrying every {self.reconnect_period_s:g} s")
+            return
+        if status and status != self._last_status:  # a monitor-only link retries: say it once
+            self._last_problem = None
+            self.get_logger().info(f"connected to {self.where}: {status}")
+        self._last_status = status or self._last_status
+
+    def _publish_state(self):
+        if not self.arm.receiving:
+            return
+        stamp = self.get_clock().now().to_msg()
+        try:
+            X = self.arm.flange_in_task()
+        except ConnectionLost as e:
+            self._problem(f"{self.where}: {e}; reconnecting every {self.reconnect_period_s:g} s")
+            return
+        self.pub_flange.publish(_pose_stamped(X, stamp, self.frame_id))
+        if self.pub_camera is not None:
+            self.pub_camera.publish(_pose_stamped(X @ self.X_flange_camera, stamp, self.frame_id))
+
+    def _problem(self, text):
+        """The same problem once a minute, a new one at once."""
+        now = time.monotonic()
+        if text != self._last_problem or now - self._last_problem_t > 60.0:
+            self.get_logger().error(text)
+            self._last_problem, self._last_problem_t = text, now
+
+    # -- services -------------------------------------------------------------------
+
+    def _guarded(self, handler):
+        def call(request, response):
+            try:
+                return handler(request, response)
+            except Exception as e:  # a bug: say so, keep serving
+                self.get_logger().error(f"{handler.__name__}: {type(e).__name__}: {e}")
+                response.success = False
+                response.message = f"internal error ({type(e).__name__}: {e}); ur_arm keeps running"
+                return response
+        return call
+
+    def _target(self, target):
+        """4x4 X_task_tcp, or raise ValueError saying what is wrong (as the sim bridge)."""
+        frame = target.header.frame_id
+        if frame not in ("", self.frame_id):
+            raise ValueError(f"target frame {frame!r} is unknown: give the TCP pose in {self.frame_id!r}")
+        p, q = target.pose.position, target.pose.orientation
+        if not all(math.isfinite(v) for v in (p.x, p.y, p.z, q.x, q.y, q.z, q.w)):
+            raise ValueError("target pose has NaN or infinite values")
+        norm = math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2)
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"target orientation is not a unit quaternion (|q| = {norm:.4f})")
+        X = np.eye(4)
+        X[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+        X[:3, 3] = (p.x, p.y, p.z)
+        return X
+
+    def _on_move(self, request, response):
+        response.joint_positions = []
+        try:
+            X = self._target(request.target)
+            result = self.arm.move(X, float(request.speed_mps), check_only=bool(request.check_only))
+        except ValueError as e:
+            response.reachable, response.success, response.message = False, False, f"rejected: {e}"
+            return response
+        except ConnectionLost as e:
+            self._problem(f"{self.where}: {e}; reconnecting every {self.reconnect_period_s:g} s")
+            response.reachable, response.success = False, False
+            response.message = f"arm connection lost: {e}; nothing further was commanded, ur_arm reconnects"
+            return response
+        response.reachable, response.success = result.reachable, result.success
+        response.message, response.joint_positions = result.message, result.joint_positions
+        if not request.check_only and not result.success:
+            self.get_logger().warn(f"move_to_pose: {result.message}")
+        return response
+
+    def _on_stop(self, request, response):
+        response.success = self.arm.stop()
+        response.message = "motion stopped" if response.success else "no motion was running"
+        return response
+
+    def _on_reconnect(self, request, response):
+        if self.arm.busy:
+            response.success, response.message = False, "a motion is running: stop it first"
+            return response
+        try:
+            response.message = f"connected: {self.arm.connect()}"
+            response.success = True
+        except ConnectionLost as e:
+            response.success, response.message = False, f"cannot reach {self.where}: {e}; {UNREACHABLE_HINT}"
+        return response
+
+    def close(self):
+        self.arm.close()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = URArmNode()
+    except ValueError as e:
+        print(f"ur_arm: cannot start: {e}", file=sys.stderr, flush=True)
+        rclpy.try_shutdown()
+        return 2
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
