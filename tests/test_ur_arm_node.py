@@ -124,8 +124,11 @@ def test_the_executor_grasps_through_the_ur_adapter(served, ros_process, tmp_pat
     link = str(tmp_path / "ttyGripper")
     ros_process("robotiq_driver", "gripper_emulator",
                 args=["--link", link, "--object-width-m", "0.05", "--activation-time-s", "0.1"])
+    # No camera here (max_tsdf_age_s 0), and the emulator always holds its 5 cm object, so
+    # the executor gets a stored empty-closed calibration instead of measuring one.
     execute = ros_process("gravgrasp_detector", "execute",
-                          params={"gripper_port": link, "check_ik": True, "tcp_offset_m": 0.1558})
+                          params={"gripper_port": link, "check_ik": True, "tcp_offset_m": 0.1558,
+                                  "max_tsdf_age_s": 0.0, "gripper_empty_closed_m": 0.0})
     execute.wait_for_output("execute ready", timeout_s=60)
     assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
     request = ExecuteGrasp.Request()
