@@ -41,7 +41,9 @@ def world(tmp_path_factory):
     procs.append(RosProcess("gravgrasp_detector", "tsdf", log_dir=tmp))
     procs.append(RosProcess("gravgrasp_detector", "detect", params={"model_path": str(SHIPPED_MODEL)}, log_dir=tmp))
     # The sim runs at ~0.3-0.6x real time while holding an object: give motions time.
-    procs.append(RosProcess("gravgrasp_detector", "execute", params={"gripper_port": link, "arm_timeout_s": 120.0},
+    # ... and the fingers too (the calibration's close timed out at 5 s under load).
+    procs.append(RosProcess("gravgrasp_detector", "execute", params={"gripper_port": link, "arm_timeout_s": 120.0,
+                                                                     "gripper_timeout_s": 60.0},
                             log_dir=tmp))
     procs[-1].wait_for_output("execute ready", timeout_s=60)
     rclpy.init()
