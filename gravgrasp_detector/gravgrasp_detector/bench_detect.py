@@ -33,7 +33,7 @@ def read_frames(bag):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    from .tsdf_node import depth_from_image_msg, pose_to_matrix
+    from .tsdf_node import camera_pose_from_msg, depth_from_image_msg
 
     store = get_typestore(Stores.ROS2_JAZZY)
     frames, info, pose = [], None, None
@@ -43,7 +43,7 @@ def read_frames(bag):
             if connection.msgtype == "sensor_msgs/msg/CameraInfo":
                 info = CameraIntrinsics.from_k(msg.k, msg.width, msg.height)
             elif connection.msgtype == "geometry_msgs/msg/PoseStamped":
-                pose = pose_to_matrix(msg.pose)
+                pose = camera_pose_from_msg(msg.pose)
             elif connection.msgtype == "sensor_msgs/msg/Image":
                 depth = depth_from_image_msg(msg)
                 if depth.dtype == np.uint16:

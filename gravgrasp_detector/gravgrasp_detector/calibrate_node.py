@@ -30,17 +30,17 @@ import cv2
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
 from . import cell_file
 from .calibration_capture import CaptureSettings, StillPoseCapture
 from .camera_calibration import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
+from .poses import PoseError
+from .ros_interface import described, matrix_from_pose_msg, stamp_s
 
 ENCODINGS = {"mono8": (np.uint8, 1), "8UC1": (np.uint8, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3),
              "bgra8": (np.uint8, 4), "rgba8": (np.uint8, 4), "mono16": (np.uint16, 1), "16UC1": (np.uint16, 1)}
@@ -59,23 +59,11 @@ def image_from_msg(msg: Image) -> np.ndarray:
     return image[..., 0] if channels == 1 else image
 
 
-def pose_matrix(msg: PoseStamped) -> np.ndarray:
-    p, q = msg.pose.position, msg.pose.orientation
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    X[:3, 3] = (p.x, p.y, p.z)
-    return X
-
-
-def stamp_s(header) -> float:
-    return header.stamp.sec + header.stamp.nanosec * 1e-9
-
-
 class CalibrateNode(Node):
     def __init__(self):
         super().__init__("calibrate_camera")
         p = lambda name, default, text: self.declare_parameter(  # noqa: E731
-            name, default, ParameterDescriptor(description=text, read_only=True)).value
+            name, default, described(text, read_only=True)).value
         self.mode = p("mode", "eye_to_hand", "'eye_to_hand' (camera fixed, board on the flange) or "
                                              "'eye_in_hand' (camera on the flange, board fixed)")
         self.target = CharucoTarget(
@@ -116,7 +104,12 @@ class CalibrateNode(Node):
             self._say(f"flange pose is in frame {msg.header.frame_id!r}, expected {self.frame_id!r}: "
                       "publish it in the task frame (ur_arm's flange_pose is)")
             return
-        self.capture.add_pose(stamp_s(msg.header), pose_matrix(msg))
+        try:
+            X_task_flange = matrix_from_pose_msg(msg.pose)
+        except PoseError as e:
+            self._say(f"flange pose ignored: {e}")
+            return
+        self.capture.add_pose(stamp_s(msg.header.stamp), X_task_flange)
 
     def on_image(self, msg: Image):
         if self.done.is_set():
@@ -124,7 +117,7 @@ class CalibrateNode(Node):
         if self.K is None:
             self._say(f"waiting for CameraInfo on {self.topics['info']}")
             return
-        t = stamp_s(msg.header)
+        t = stamp_s(msg.header.stamp)
         why = self.capture.offer_image(t, None)
         if why is not None:
             self._say(why, info=True)
@@ -208,7 +201,7 @@ def run_bag(node: CalibrateNode) -> int:
             node.on_pose(msg)
         elif topic == topics["info"] and node.K is None:
             node.on_info(msg)
-    for topic, msg in sorted(((t, m) for t, m in messages if t == topics["image"]), key=lambda tm: stamp_s(tm[1].header)):
+    for topic, msg in sorted(((t, m) for t, m in messages if t == topics["image"]), key=lambda tm: stamp_s(tm[1].header.stamp)):
         if node.done.is_set():
             break
         node.on_image(msg)

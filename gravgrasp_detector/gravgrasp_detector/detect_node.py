@@ -17,21 +17,20 @@ import threading
 import time
 
 import numpy as np
-import rclpy
 import torch
 from builtin_interfaces.msg import Duration
 from gravgrasp_msgs.msg import Grasp as GraspMsg
 from gravgrasp_msgs.msg import GraspArray
 from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from . import detection, model_file
-from .markers import grasp_markers, matrix_to_pose
+from .markers import grasp_markers
 from .model_file import ModelFileError
+from .poses import PoseError
 from .problem_log import ProblemLog
+from .ros_interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
 from .tsdf import TSDF_CONVENTION, InputError
 from .tsdf_node import VOLUME_QOS
 
@@ -64,20 +63,11 @@ def volume_grid(msg, metadata):
             "TSDF volume is empty (no voxel ever observed): the tsdf node has not fused a depth "
             "image yet; check its log for depth, CameraInfo or camera pose problems")
     grid = np.asarray(msg.tsdf, dtype=np.float32).reshape((int(msg.resolution),) * 3)
-    o = msg.origin
-    T = np.eye(4)
-    T[:3, :3] = _quat_matrix(o.orientation)
-    T[:3, 3] = (o.position.x, o.position.y, o.position.z)
+    try:
+        T = matrix_from_pose_msg(msg.origin)
+    except PoseError as e:
+        raise InputError("volume_origin", f"TSDF origin: {e}") from None
     return grid, T
-
-
-def _quat_matrix(q):
-    from scipy.spatial.transform import Rotation
-
-    quat = np.array([q.x, q.y, q.z, q.w])
-    if not np.isfinite(quat).all() or abs(np.linalg.norm(quat) - 1) > 1e-3:
-        raise InputError("volume_origin", f"TSDF origin quaternion {quat.tolist()} is not a unit quaternion")
-    return Rotation.from_quat(quat).as_matrix()
 
 
 def startup_lines(model_path, metadata, precision, threads):
@@ -100,34 +90,22 @@ def startup_lines(model_path, metadata, precision, threads):
     return lines
 
 
-def _float(description, low, high, read_only=False):
-    return ParameterDescriptor(
-        description=description, read_only=read_only,
-        floating_point_range=[FloatingPointRange(from_value=low, to_value=high)])
-
-
-def _int(description, low, high, read_only=False):
-    return ParameterDescriptor(
-        description=description, read_only=read_only,
-        integer_range=[IntegerRange(from_value=low, to_value=high, step=1)])
-
-
 class DetectNode(Node):
     def __init__(self):
         super().__init__("detect")
         p = self.declare_parameter
-        model_path = p("model_path", DEFAULT_MODEL, ParameterDescriptor(
-            description="Model file (.pt with metadata); relative to $GRAVGRASP_ROOT or the working directory",
+        model_path = p("model_path", DEFAULT_MODEL, described(
+            "Model file (.pt with metadata); relative to $GRAVGRASP_ROOT or the working directory",
             read_only=True)).value
-        p("validness_threshold", 0.5, _float("Least predicted validness of a returned grasp", 0.0, 1.0))
-        p("min_score_n", 0.0, _float(
+        p("validness_threshold", 0.5, float_range("Least predicted validness of a returned grasp", 0.0, 1.0))
+        p("min_score_n", 0.0, float_range(
             "Least gravity-rejection score of a returned grasp, N (e.g. object weight x g x safety factor)",
             0.0, 10000.0))
-        p("max_grasps", 20, _int("Most grasps per volume", 1, 1000))
-        p("surface_distance_voxels", 6, _int("Candidates lie within this many voxels of an observed surface", 1, 40))
-        p("nms_radius_voxels", 2, _int("Non-maximum suppression radius, voxels (0 = off)", 0, 10))
-        p("pregrasp_distance_m", 0.05, _float("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
-        threads = p("torch_threads", 1, _int(
+        p("max_grasps", 20, int_range("Most grasps per volume", 1, 1000))
+        p("surface_distance_voxels", 6, int_range("Candidates lie within this many voxels of an observed surface", 1, 40))
+        p("nms_radius_voxels", 2, int_range("Non-maximum suppression radius, voxels (0 = off)", 0, 10))
+        p("pregrasp_distance_m", 0.05, float_range("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
+        threads = p("torch_threads", 1, int_range(
             "Intra-op threads of the network. 1 by default: on a small CPU shared with the tsdf "
             "node, OpenMP threads waiting on a busy core made detection up to 10x slower", 1, 64,
             read_only=True)).value
@@ -135,8 +113,8 @@ class DetectNode(Node):
         # 'auto': bf16 where the CPU has native bf16 (2x faster here), else fp32. With the
         # shipped model bench_detect measured 100 % top-10 agreement with fp32 (8 volumes
         # of tests/data/tabletop_bag); re-check it for any other model.
-        precision = p("precision", "auto", ParameterDescriptor(
-            description="Network arithmetic: 'fp32', 'bf16' (autocast, needs AVX-512 BF16/AMX to be fast; "
+        precision = p("precision", "auto", described(
+            "Network arithmetic: 'fp32', 'bf16' (autocast, needs AVX-512 BF16/AMX to be fast; "
                         "check bench_detect's bf16-vs-fp32 top-10 agreement for your model first), "
                         "or 'auto' (bf16 where the CPU has it)", read_only=True)).value
 
@@ -204,7 +182,7 @@ class DetectNode(Node):
         out.detection_latency = Duration(sec=int(latency_s), nanosec=int((latency_s % 1) * 1e9))
         pregrasp = float(param("pregrasp_distance_m"))
         out.grasps = [
-            GraspMsg(pose=matrix_to_pose(g.pose), gravity_rejection_score=g.score_n, validness=g.validness,
+            GraspMsg(pose=pose_msg_from_matrix(g.pose), gravity_rejection_score=g.score_n, validness=g.validness,
                      voxel_index=list(g.voxel_index), pregrasp_distance_m=pregrasp)
             for g in grasps
         ]
@@ -230,21 +208,8 @@ class DetectNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = DetectNode()
-    except ModelFileError as e:
-        rclpy.logging.get_logger("detect").fatal(f"cannot start: {e}")
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node("detect", DetectNode, ModelFileError, args=args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -18,11 +18,8 @@ import threading
 import time
 
 import numpy as np
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rcl_interfaces.msg import ParameterDescriptor
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
@@ -33,15 +30,8 @@ from robotiq_driver.gripper_client import Robotiq2F85
 from .arm_reachability import ArmReachability
 from .grasp_execution import (Abort, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome, ResultCode,
                               pose_to_matrix)
+from .ros_interface import described, pose_msg_from_matrix, run_node
 from .tsdf_node import VOLUME_QOS
-
-
-def matrix_to_pose(X, pose):
-    from scipy.spatial.transform import Rotation
-    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in X[:3, 3])
-    x, y, z, w = Rotation.from_matrix(X[:3, :3]).as_quat()
-    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = float(x), float(y), float(z), float(w)
-    return pose
 
 
 class ServiceArm:
@@ -68,7 +58,7 @@ class ServiceArm:
             return False, f"arm service {self.client.srv_name} is not available (timeout)"
         request = MoveToPose.Request(speed_mps=float(speed_mps), check_only=False)
         request.target.header.frame_id = self.frame_id
-        matrix_to_pose(X_task_tcp, request.target.pose)
+        pose_msg_from_matrix(X_task_tcp, request.target.pose)
         done = threading.Event()
         future = self.client.call_async(request)
         future.add_done_callback(lambda _: done.set())
@@ -96,7 +86,7 @@ class ExecuteNode(Node):
         super().__init__("execute")
 
         def param(name, default, description):
-            return self.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+            return self.declare_parameter(name, default, described(description)).value
 
         self.task_frame = param("task_frame", "task", "frame grasps must be expressed in (gravity-aligned)")
         port = param("gripper_port", "/dev/ttyUSB0", "serial port of the Robotiq 2F-85 (Modbus RTU)")
@@ -238,26 +228,15 @@ class ExecuteNode(Node):
         return self.executor_core.execute(X, self._tsdf_arrays(), float(grasp.pregrasp_distance_m)), grasp
 
 
+    def close(self):
+        if self.executor_core.gripper is not None:
+            self.executor_core.gripper.close()
+
+
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = ExecuteNode()
-    except Exception as err:  # bad configuration: one line, non-zero exit
-        print(f"execute: cannot start: {err}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node.executor_core.gripper is not None:
-            node.executor_core.gripper.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    # Any constructor error is a bad configuration here (a gripper port that cannot be
+    # opened raises OSError, a bad limit ValueError, ...): one line, exit 2.
+    return run_node("execute", ExecuteNode, Exception, threads=4, args=args)
 
 
 if __name__ == "__main__":

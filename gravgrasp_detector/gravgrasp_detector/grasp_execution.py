@@ -41,6 +41,7 @@ from robotiq_driver.gripper_registers import ObjectStatus
 from robotiq_driver.modbus_client import ModbusError
 
 from . import hand_clearance
+from .poses import PoseError, matrix_from_pose
 
 
 class ResultCode(enum.IntEnum):
@@ -109,22 +110,11 @@ class Arm(Protocol):
 
 
 def pose_to_matrix(position, quaternion_xyzw) -> np.ndarray:
-    """Validated pose -> 4x4; raises Abort(INVALID_REQUEST) with the reason."""
-    p = np.asarray(position, float)
-    q = np.asarray(quaternion_xyzw, float)
-    if not (np.isfinite(p).all() and np.isfinite(q).all()):
-        raise Abort(ResultCode.INVALID_REQUEST, "grasp pose has NaN or infinite values: send a finite pose")
-    norm = np.linalg.norm(q)
-    if abs(norm - 1.0) > 1e-3:
-        raise Abort(ResultCode.INVALID_REQUEST,
-                    f"grasp orientation is not a unit quaternion (norm {norm:.4g}): normalise it")
-    x, y, z, w = q / norm
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-    X = np.eye(4)
-    X[:3, :3], X[:3, 3] = R, p
-    return X
+    """Validated grasp pose -> 4x4; raises Abort(INVALID_REQUEST) with the reason."""
+    try:
+        return matrix_from_pose(position, quaternion_xyzw)
+    except PoseError as e:
+        raise Abort(ResultCode.INVALID_REQUEST, f"grasp pose: {e}: send a finite pose with a unit quaternion") from None
 
 
 def plan_poses(X_grasp, pregrasp_distance_m, lift_height_m) -> dict[str, np.ndarray]:

@@ -11,10 +11,11 @@ Outline in the TCP frame (z = approach, y = closing axis), fingers open (85 mm):
 """
 
 import numpy as np
-from geometry_msgs.msg import Point, Pose
-from scipy.spatial.transform import Rotation
+from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
+
+from .ros_interface import pose_msg_from_matrix
 
 HALF_OPENING_M = 0.0425
 PALM_Z_M = -0.05
@@ -36,14 +37,6 @@ def score_colour(score_n, max_score_n):
     return ColorRGBA(r=float(min(1.0, 2 * (1 - f))), g=float(min(1.0, 2 * f)), b=0.0, a=1.0)
 
 
-def matrix_to_pose(T):
-    pose = Pose()
-    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in q)
-    return pose
-
-
 def grasp_markers(grasps, header, line_width_m=0.002):
     """MarkerArray: DELETEALL, then one LINE_LIST per grasp (namespace 'grasps', id = rank)."""
     out = MarkerArray()
@@ -52,7 +45,7 @@ def grasp_markers(grasps, header, line_width_m=0.002):
     points = [Point(x=0.0, y=float(y), z=float(z)) for segment in OUTLINE for (y, z) in segment]
     for rank, g in enumerate(grasps):
         m = Marker(header=header, ns="grasps", id=rank, type=Marker.LINE_LIST, action=Marker.ADD)
-        m.pose = matrix_to_pose(g.pose)
+        m.pose = pose_msg_from_matrix(g.pose)
         m.scale.x = line_width_m
         m.color = score_colour(g.score_n, top)
         m.points = points

@@ -22,7 +22,6 @@ import os
 import sys
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
@@ -31,6 +30,7 @@ from .cell_config import CellConfigError, check_consistency, load_sections, para
 from .detect_node import DetectNode
 from .execute_node import ExecuteNode
 from .model_file import ModelFileError
+from .ros_interface import described
 from .tsdf import InputError
 from .tsdf_node import TSDFNode
 
@@ -51,7 +51,7 @@ def stack_settings(args):
     rclpy.init(args=args, context=context)
     try:
         node = Node("stack", context=context)
-        values = {name: node.declare_parameter(name, default, ParameterDescriptor(description=text)).value
+        values = {name: node.declare_parameter(name, default, described(text)).value
                   for name, (default, text) in STACK_PARAMETERS.items()}
         node.destroy_node()
         return values

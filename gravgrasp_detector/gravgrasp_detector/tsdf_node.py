@@ -25,19 +25,17 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
+from .poses import PoseError
 from .problem_log import ProblemLog
+from .ros_interface import described, float_range, int_range, matrix_from_pose_msg, run_node, stamp_s
 from .tsdf import CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, to_network_grid
 
 DEPTH_ENCODINGS = {"16UC1": np.uint16, "32FC1": np.float32}
@@ -68,62 +66,41 @@ def depth_from_image_msg(msg):
     return depth.astype(dtype, copy=False)
 
 
-def pose_to_matrix(pose):
-    q = (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w)
-    norm = np.linalg.norm(q)
-    if not np.isfinite(q).all() or abs(norm - 1.0) > 1e-3:
-        raise InputError(
-            "camera_pose_quaternion",
-            f"camera pose quaternion {np.round(q, 4).tolist()} has norm {norm:.4f}: publish a "
-            "unit quaternion (x, y, z, w)",
-        )
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(q).as_matrix()
-    T[:3, 3] = (pose.position.x, pose.position.y, pose.position.z)
-    return T
-
-
-def _stamp_s(stamp):
-    return stamp.sec + stamp.nanosec * 1e-9
-
-
-def _float(description, low, high, read_only=True):
-    return ParameterDescriptor(
-        description=description, read_only=read_only,
-        floating_point_range=[FloatingPointRange(from_value=low, to_value=high)])
+def camera_pose_from_msg(pose):
+    """geometry_msgs/Pose of the camera -> T_task_camera; raises InputError."""
+    try:
+        return matrix_from_pose_msg(pose)
+    except PoseError as e:
+        raise InputError("camera_pose_quaternion", f"camera pose {e}: publish a finite pose with a unit quaternion") from None
 
 
 class TSDFNode(Node):
     def __init__(self):
         super().__init__("tsdf")
         p = self.declare_parameter
-        size_m = p("size_m", 0.30, _float("Edge of the workspace cube, m (the model's)", 0.05, 5.0)).value
-        resolution = p("resolution", 40, ParameterDescriptor(
-            description="Voxels per edge (the model's)", read_only=True,
-            integer_range=[IntegerRange(from_value=8, to_value=256, step=8)])).value
-        truncation_voxels = p("truncation_voxels", 4.0, _float("TSDF truncation distance, voxels", 1.0, 20.0)).value
-        self.frame_id = p("frame_id", "task", ParameterDescriptor(
-            description="Gravity-aligned task frame: the volume's header.frame_id; its corner is at this frame's origin",
+        size_m = p("size_m", 0.30, float_range("Edge of the workspace cube, m (the model's)", 0.05, 5.0, read_only=True)).value
+        resolution = p("resolution", 40, int_range("Voxels per edge (the model's)", 8, 256, step=8, read_only=True)).value
+        truncation_voxels = p("truncation_voxels", 4.0, float_range("TSDF truncation distance, voxels", 1.0, 20.0, read_only=True)).value
+        self.frame_id = p("frame_id", "task", described(
+            "Gravity-aligned task frame: the volume's header.frame_id; its corner is at this frame's origin",
             read_only=True)).value
-        rate = p("publish_rate_hz", 5.0, _float("Most volumes published per second", 0.1, 100.0)).value
-        self.pose_source = p("camera_pose_source", "topic", ParameterDescriptor(
-            description="'topic': camera pose from the camera_pose PoseStamped topic; "
-                        "'parameter': fixed camera_pose (static extrinsic)", read_only=True)).value
-        static_pose = p("camera_pose", [0.0] * 7, ParameterDescriptor(
-            description="Static pose of the camera optical frame in the task frame: "
-                        "[x, y, z (m), qx, qy, qz, qw]; used with camera_pose_source:=parameter",
-            read_only=True)).value
-        self.max_camera_distance_m = p("max_camera_distance_m", 3.0, _float(
-            "Camera farther than this from the workspace centre is a pose error, m", 0.1, 20.0)).value
-        max_depth_m = p("max_depth_m", 3.0, _float("Depth returns beyond this are ignored, m", 0.1, 20.0)).value
-        self.pose_tolerance_s = p("pose_time_tolerance_s", 0.05, _float(
-            "Largest |pose stamp - image stamp| accepted with camera_pose_source:=topic, s", 0.0, 10.0)).value
-        self.sync_timeout_s = p("sync_timeout_s", 1.0, _float(
-            "How long an image waits for its CameraInfo and pose, s", 0.05, 30.0)).value
+        rate = p("publish_rate_hz", 5.0, float_range("Most volumes published per second", 0.1, 100.0, read_only=True)).value
+        self.pose_source = p("camera_pose_source", "topic", described(
+            "'topic': camera pose from the camera_pose PoseStamped topic; "
+            "'parameter': fixed camera_pose (static extrinsic)", read_only=True)).value
+        static_pose = p("camera_pose", [0.0] * 7, described(
+            "Static pose of the camera optical frame in the task frame: "
+            "[x, y, z (m), qx, qy, qz, qw]; used with camera_pose_source:=parameter", read_only=True)).value
+        self.max_camera_distance_m = p("max_camera_distance_m", 3.0, float_range(
+            "Camera farther than this from the workspace centre is a pose error, m", 0.1, 20.0, read_only=True)).value
+        max_depth_m = p("max_depth_m", 3.0, float_range("Depth returns beyond this are ignored, m", 0.1, 20.0, read_only=True)).value
+        self.pose_tolerance_s = p("pose_time_tolerance_s", 0.05, float_range(
+            "Largest |pose stamp - image stamp| accepted with camera_pose_source:=topic, s", 0.0, 10.0, read_only=True)).value
+        self.sync_timeout_s = p("sync_timeout_s", 1.0, float_range(
+            "How long an image waits for its CameraInfo and pose, s", 0.05, 30.0, read_only=True)).value
         # Topic names as parameters too, so one cell parameter file can point the node at
         # the camera (a params file cannot remap); -r remapping works as before.
-        topic = lambda name, default, text: p(name, default, ParameterDescriptor(  # noqa: E731
-            description=text, read_only=True)).value
+        topic = lambda name, default, text: p(name, default, described(text, read_only=True)).value  # noqa: E731
         self.depth_topic = topic("depth_image_topic", "depth/image", "depth image topic (16UC1 or 32FC1)")
         self.info_topic = topic("camera_info_topic", "depth/camera_info", "CameraInfo of that depth image")
         self.pose_topic = topic("camera_pose_topic", "camera_pose", "camera pose topic (camera_pose_source:=topic)")
@@ -172,7 +149,7 @@ class TSDFNode(Node):
         (msg.pose.position.x, msg.pose.position.y, msg.pose.position.z,
          msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w) = values
         try:
-            T = pose_to_matrix(msg.pose)
+            T = camera_pose_from_msg(msg.pose)
             check_camera_pose(T, self.volume.size_m, self.max_camera_distance_m)
         except InputError as e:
             raise InputError("config", f"camera_pose parameter: {e}") from None
@@ -199,12 +176,12 @@ class TSDFNode(Node):
                 "publish the optical frame's pose in the task frame (or set frame_id)")
             return
         try:
-            T = pose_to_matrix(msg.pose)
+            T = camera_pose_from_msg(msg.pose)
         except InputError as e:
             self.problems.report(e.cause, str(e))
             return
         self.problems.clear("pose_frame")
-        self.poses.append((_stamp_s(msg.header.stamp), T))
+        self.poses.append((stamp_s(msg.header.stamp), T))
         self._integrate_pending()
 
     def _on_depth(self, msg):
@@ -219,7 +196,7 @@ class TSDFNode(Node):
             self.problems.report("malformed_image", f"depth image cannot be decoded ({e}): the publisher fills the message wrongly")
             return
         self.problems.clear("encoding", "malformed_image")
-        self.get_logger().debug(f"depth {_stamp_s(msg.header.stamp):.3f} received, {len(self.pending)} pending")
+        self.get_logger().debug(f"depth {stamp_s(msg.header.stamp):.3f} received, {len(self.pending)} pending")
         self.frames_received += 1
         self.pending.append((time.monotonic(), msg.header, depth))
         self._integrate_pending()
@@ -245,7 +222,7 @@ class TSDFNode(Node):
         while self.pending and self.camera_info is not None:
             _, header, depth = self.pending[0]
             try:
-                T = self._pose_for(_stamp_s(header.stamp))
+                T = self._pose_for(stamp_s(header.stamp))
                 if T is None:
                     return  # wait for the pose
                 self.pending.popleft()
@@ -265,7 +242,7 @@ class TSDFNode(Node):
             self.frames_fused += 1
             self.dirty = True
             self.last_stamp = header.stamp
-            self.get_logger().debug(f"depth {_stamp_s(header.stamp):.3f} fused ({self.volume.frames_integrated} frames)")
+            self.get_logger().debug(f"depth {stamp_s(header.stamp):.3f} fused ({self.volume.frames_integrated} frames)")
 
     def _expire_pending(self):
         now = time.monotonic()
@@ -329,21 +306,8 @@ class TSDFNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = TSDFNode()
-    except InputError as e:
-        rclpy.logging.get_logger("tsdf").fatal(str(e))
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node("tsdf", TSDFNode, InputError, args=args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

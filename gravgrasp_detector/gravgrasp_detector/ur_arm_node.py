@@ -24,17 +24,15 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from gravgrasp_msgs.srv import MoveToPose
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from geometry_msgs.msg import PoseStamped
-from scipy.spatial.transform import Rotation
 from std_srvs.srv import Trigger
 
+from .poses import PoseError, matrix_from_pose
+from .ros_interface import described, float_range, matrix_from_pose_msg, pose_stamped_from_matrix, run_node
 from .ur_arm import FLANGE_TO_TCP_2F85_M, ConnectionLost, URArm, URArmSettings, xyz_yaw_to_matrix
 
 UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > System > Network), that the robot "
@@ -58,29 +56,13 @@ def rtde_connect(robot_ip: str, frequency_hz: float):
     return connect
 
 
-def _pose_stamped(X, stamp, frame_id) -> PoseStamped:
-    msg = PoseStamped()
-    msg.header.stamp, msg.header.frame_id = stamp, frame_id
-    p, q = msg.pose.position, msg.pose.orientation
-    p.x, p.y, p.z = (float(v) for v in X[:3, 3])
-    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(X[:3, :3]).as_quat())
-    return msg
-
-
-def _float(text, low, high):
-    return ParameterDescriptor(description=text, read_only=True,
-                               floating_point_range=[FloatingPointRange(from_value=float(low), to_value=float(high))])
-
-
-def _text(text):
-    return ParameterDescriptor(description=text, read_only=True)
-
-
 class URArmNode(Node):
     def __init__(self, connect=None, **node_options):
         """`connect`: () -> (control, receive); default: ur_rtde to `robot_ip`."""
         super().__init__("ur_arm", **node_options)
         p = lambda name, default, d: self.declare_parameter(name, default, d).value  # noqa: E731
+        _text = lambda text: described(text, read_only=True)  # noqa: E731  (all read-only)
+        _float = lambda text, low, high: float_range(text, float(low), float(high), read_only=True)  # noqa: E731
         defaults = URArmSettings()
         self.robot_ip = p("robot_ip", "", _text("IP address of the UR controller (pendant: Settings > System > Network)"))
         frequency = p("rtde_frequency_hz", -1.0, _float("RTDE frequency, Hz; -1 = the controller's (500 on e-Series)", -1.0, 500.0))
@@ -115,11 +97,13 @@ class URArmNode(Node):
             "calibrate_camera writes it; all zeros = no camera on the arm (camera_pose is not published)"))
         self.X_flange_camera = None
         if any(camera):
-            if len(camera) != 7 or abs(np.linalg.norm(camera[3:]) - 1.0) > 1e-3:
-                raise ValueError(f"camera_in_flange must be [x, y, z, qx, qy, qz, qw] with a unit quaternion, got {list(camera)}")
-            self.X_flange_camera = np.eye(4)
-            self.X_flange_camera[:3, :3] = Rotation.from_quat(camera[3:]).as_matrix()
-            self.X_flange_camera[:3, 3] = camera[:3]
+            try:
+                if len(camera) != 7:
+                    raise PoseError(f"{len(camera)} values")
+                self.X_flange_camera = matrix_from_pose(camera[:3], camera[3:])
+            except PoseError as e:
+                raise ValueError(f"camera_in_flange must be [x, y, z, qx, qy, qz, qw] with a unit quaternion, "
+                                 f"got {list(camera)} ({e})") from None
         state_rate = p("state_rate_hz", 30.0, _float("flange_pose (and camera_pose) rate, Hz", 0.5, 250.0))
         self.reconnect_period_s = p("reconnect_period_s", 5.0, _float("retry period while the robot is unreachable, s", 0.1, 600.0))
         if connect is None:
@@ -173,9 +157,9 @@ class URArmNode(Node):
         except ConnectionLost as e:
             self._problem(f"{self.where}: {e}; reconnecting every {self.reconnect_period_s:g} s")
             return
-        self.pub_flange.publish(_pose_stamped(X, stamp, self.frame_id))
+        self.pub_flange.publish(pose_stamped_from_matrix(X, stamp, self.frame_id))
         if self.pub_camera is not None:
-            self.pub_camera.publish(_pose_stamped(X @ self.X_flange_camera, stamp, self.frame_id))
+            self.pub_camera.publish(pose_stamped_from_matrix(X @ self.X_flange_camera, stamp, self.frame_id))
 
     def _problem(self, text):
         """The same problem once a minute, a new one at once."""
@@ -202,16 +186,10 @@ class URArmNode(Node):
         frame = target.header.frame_id
         if frame not in ("", self.frame_id):
             raise ValueError(f"target frame {frame!r} is unknown: give the TCP pose in {self.frame_id!r}")
-        p, q = target.pose.position, target.pose.orientation
-        if not all(math.isfinite(v) for v in (p.x, p.y, p.z, q.x, q.y, q.z, q.w)):
-            raise ValueError("target pose has NaN or infinite values")
-        norm = math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2)
-        if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"target orientation is not a unit quaternion (|q| = {norm:.4f})")
-        X = np.eye(4)
-        X[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-        X[:3, 3] = (p.x, p.y, p.z)
-        return X
+        try:
+            return matrix_from_pose_msg(target.pose)
+        except PoseError as e:
+            raise ValueError(f"target pose: {e}") from None
 
     def _on_move(self, request, response):
         response.joint_positions = []
@@ -253,25 +231,7 @@ class URArmNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = URArmNode()
-    except ValueError as e:
-        print(f"ur_arm: cannot start: {e}", file=sys.stderr, flush=True)
-        rclpy.try_shutdown()
-        return 2
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node("ur_arm", URArmNode, ValueError, threads=4, args=args)
 
 
 if __name__ == "__main__":
