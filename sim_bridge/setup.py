@@ -17,17 +17,17 @@ setup(
     entry_points={
         # Each executable is started as: ros2 run sim_bridge <name>
         "console_scripts": [
-            "evaluate_grasp = sim_bridge.evaluate_grasp_cli:main",
-            "bench_sim = sim_bridge.bench_sim:main",
-            "datagen = sim_bridge.datagen:main",
-            "data_report = sim_bridge.data_report:main",
-            "sim = sim_bridge.sim_node:main",
-            "demo = sim_bridge.clutter_demo:main",
-            "benchmark = sim_bridge.clutter_benchmark:main",
-            "qualitative = sim_bridge.qualitative:main",
-            "soak = sim_bridge.soak:main",
-            "bench_datagen = sim_bridge.bench_datagen:main",
-            "label_settings_study = sim_bridge.label_settings_study:main",
+            "evaluate_grasp = sim_bridge.physics.evaluate_grasp_cli:main",
+            "bench_sim = sim_bridge.physics.bench_sim:main",
+            "datagen = sim_bridge.datagen.cli:main",
+            "data_report = sim_bridge.datagen.data_report:main",
+            "sim = sim_bridge.ros.sim_node:main",
+            "demo = sim_bridge.ros.clutter_demo:main",
+            "benchmark = sim_bridge.benchmark.clutter_benchmark:main",
+            "qualitative = sim_bridge.benchmark.qualitative:main",
+            "soak = sim_bridge.ros.soak:main",
+            "bench_datagen = sim_bridge.datagen.bench_datagen:main",
+            "label_settings_study = sim_bridge.datagen.label_settings_study:main",
         ],
     },
 )

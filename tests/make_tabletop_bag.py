@@ -24,7 +24,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from gravgrasp_detector.bag_replay import msgtype_name, typestore_for
 from gravgrasp_detector.tsdf import CameraIntrinsics
-from sim_bridge.depth_rendering import DepthRenderer, look_at
+from sim_bridge.physics.depth_rendering import DepthRenderer, look_at
 
 OUT = pathlib.Path(__file__).resolve().parent / "data" / "tabletop_bag"
 TOPIC_DEPTH = "/camera/depth/image"

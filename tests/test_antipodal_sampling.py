@@ -1,8 +1,8 @@
 import numpy as np
 import trimesh
 
-from sim_bridge import hand_collision
-from sim_bridge.antipodal_sampling import SamplingSettings, antipodal_pairs, sample_grasp_candidates
+from sim_bridge.datagen.antipodal_sampling import SamplingSettings, antipodal_pairs, sample_grasp_candidates
+from sim_bridge.physics import hand_collision
 
 
 def test_pairs_are_on_the_surface_inside_both_friction_cones_and_fit_the_stroke():

@@ -1,4 +1,4 @@
-"""The clutter-removal benchmark (sim_bridge/clutter_benchmark.py, issue 8): the round's
+"""The clutter-removal benchmark (sim_bridge/benchmark/, issue 8): the round's
 rules on a scripted cell, the statistics, the object pool, missing models, and one
 small run in Drake (outputs, determinism, resume)."""
 import json
@@ -11,7 +11,9 @@ import torch
 import trimesh
 
 from gravgrasp_detector import model_file, networks, tsdf
-from sim_bridge import clutter_benchmark as cb
+from sim_bridge.benchmark import clutter_benchmark as cb
+from sim_bridge.benchmark import protocol, report, sim_cell
+from sim_bridge.benchmark import rounds as bench_rounds
 
 
 # -- the round's rules on a scripted cell ---------------------------------------------
@@ -54,28 +56,28 @@ def ranked(*scores):
 
 def test_round_ends_when_the_table_is_clear():
     cell = ScriptedCell(3, [True, True, True])
-    r = cb.clear_table(cell, ranked(3.0), 3)
+    r = protocol.clear_table(cell, ranked(3.0), 3)
     assert r["end"] == "table_clear" and len(r["attempts"]) == 3
     assert all(a["success"] for a in r["attempts"])
 
 
 def test_round_ends_after_two_consecutive_failures_only():
     cell = ScriptedCell(5, [False, True, False, False, True])
-    r = cb.clear_table(cell, ranked(3.0), 5)
+    r = protocol.clear_table(cell, ranked(3.0), 5)
     assert r["end"] == "consecutive_failures"
     assert [a["success"] for a in r["attempts"]] == [False, True, False, False]  # one failure did not end it
 
 
 def test_round_ends_when_nothing_is_detected_or_feasible():
-    r = cb.clear_table(ScriptedCell(2, []), ranked(), 2)
+    r = protocol.clear_table(ScriptedCell(2, []), ranked(), 2)
     assert r["end"] == "no_grasp_detected" and r["attempts"] == []
-    r = cb.clear_table(ScriptedCell(2, [], infeasible_ranks={5.0, 4.0}), ranked(5.0, 4.0), 2)
+    r = protocol.clear_table(ScriptedCell(2, [], infeasible_ranks={5.0, 4.0}), ranked(5.0, 4.0), 2)
     assert r["end"] == "no_feasible_grasp" and r["attempts"] == []
 
 
 def test_the_best_feasible_grasp_is_executed():
     cell = ScriptedCell(1, [True], infeasible_ranks={5.0})
-    r = cb.clear_table(cell, ranked(5.0, 4.0, 3.0), 1)
+    r = protocol.clear_table(cell, ranked(5.0, 4.0, 3.0), 1)
     assert cell.executed == [4.0]
     assert r["attempts"][0]["rank"] == 1 and r["attempts"][0]["skipped_infeasible"] == 1
 
@@ -87,20 +89,20 @@ def test_attempt_limit_bounds_a_round():
             ok = len(self.executed) % 2 == 0
             return {"outcome": "success" if ok else "dropped", "reason": "scripted", "lifted": []}
 
-    r = cb.clear_table(NeverClears(1, []), ranked(1.0), 1, attempts_per_object=3)
+    r = protocol.clear_table(NeverClears(1, []), ranked(1.0), 1, attempts_per_object=3)
     assert r["end"] == "attempt_limit" and len(r["attempts"]) == 3
 
 
 # -- statistics -----------------------------------------------------------------------
 
 def test_wilson_interval():
-    lo, hi = cb.wilson_interval(5, 10)
+    lo, hi = report.wilson_interval(5, 10)
     assert lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
-    lo, hi = cb.wilson_interval(0, 10)
+    lo, hi = report.wilson_interval(0, 10)
     assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)
-    lo, hi = cb.wilson_interval(10, 10)
+    lo, hi = report.wilson_interval(10, 10)
     assert hi == 1.0 and lo == pytest.approx(0.7225, abs=1e-4)
-    assert all(math.isnan(v) for v in cb.wilson_interval(0, 0))
+    assert all(math.isnan(v) for v in report.wilson_interval(0, 0))
 
 
 # -- objects and models ---------------------------------------------------------------
@@ -110,7 +112,7 @@ def test_oversized_objects_are_excluded_and_reported(tmp_path):
     trimesh.creation.box((0.09, 0.20, 0.03)).export(tmp_path / "flat_board.obj")     # 30 mm thick: fits
     for i in range(5):
         trimesh.creation.cylinder(radius=0.02 + 0.002 * i, height=0.1).export(tmp_path / f"can{i}.obj")
-    usable, excluded = cb.object_pool(str(tmp_path))
+    usable, excluded = protocol.object_pool(str(tmp_path))
     assert [e["name"] for e in excluded] == ["big_cube"]
     assert excluded[0]["min_width_mm"] == pytest.approx(100.0, abs=0.5)
     assert sorted(s.name for s in usable) == ["can0", "can1", "can2", "can3", "can4", "flat_board"]
@@ -131,11 +133,11 @@ def test_bad_mesh_dir_is_one_clear_error(tmp_path, capsys):
 def test_missing_model_is_skipped_with_a_note(tmp_path):
     notes = []
     save_test_model(tmp_path / "gravgrasp.pt")
-    found = cb.resolve_methods(["ours", "binary"], tmp_path, note=notes.append)
+    found = bench_rounds.resolve_methods(["ours", "binary"], tmp_path, note=notes.append)
     assert list(found) == ["ours"]
     assert notes == [f"benchmark: skipping binary: model file {tmp_path / 'gravgrasp_binary.pt'} not found"]
     with pytest.raises(ValueError, match="unknown method"):
-        cb.resolve_methods(["oursx"], tmp_path)
+        bench_rounds.resolve_methods(["oursx"], tmp_path)
 
 
 def save_test_model(path, validness_bias=5.0, target="gravity-score"):
@@ -153,12 +155,12 @@ def save_test_model(path, validness_bias=5.0, target="gravity-score"):
 
 def test_binary_model_ranks_by_validness(tmp_path):
     model, meta = model_file.load_model(save_test_model(tmp_path / "b.pt", validness_bias=0.0, target="binary"))
-    assert cb.model_target(meta) == "binary"
+    assert model_file.training_target(meta) == "binary" and model_file.ranking(meta) == "validness"
     grid = np.zeros((40, 40, 40), np.float32)
     grid[10:30, 10:30, 6:12] = 0.3
     grid[10:30, 10:30, 12] = 0.5
     # a min-score threshold in N must not apply to probabilities
-    detect = cb.make_detector(model, meta, cb.Protocol(validness_threshold=0.0, min_score_n=1e6))
+    detect = bench_rounds.make_detector(model, meta, protocol.Protocol(validness_threshold=0.0, min_score_n=1e6))
     grasps = detect((grid, 0.0075, np.zeros(3)))
     assert grasps and all(0.0 <= g.score_n <= 1.0 for g in grasps)
     assert [g.score_n for g in grasps] == sorted((g.score_n for g in grasps), reverse=True)
@@ -184,7 +186,7 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert rounds["blind"]["end"] == "no_grasp_detected" and rounds["blind"]["attempts"] == 0
     ours = rounds["ours"]
     assert ours["end"] in ("table_clear", "consecutive_failures", "no_feasible_grasp", "attempt_limit")
-    assert ours["attempts"] >= 1 and ours["n_objects"] + len(ours["left_before_start"]) == cb.OBJECTS_PER_SCENE
+    assert ours["attempts"] >= 1 and ours["n_objects"] + len(ours["left_before_start"]) == protocol.OBJECTS_PER_SCENE
     for a in attempts["attempts"]:
         assert set(a) >= {"method", "mass_kg", "scene_id", "object", "pose", "score", "score_unit", "outcome",
                           "success", "reason"}
@@ -201,10 +203,10 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert sum(counts.values()) == ours["attempts"] and counts["success"] == row["successes"]
     assert (out / "sr_cr_vs_weight.png").stat().st_size > 1000
     scene = json.loads((out / "scenes" / "packed_000.json").read_text())
-    assert [o["source"]["proc_seed"] for o in scene["objects"]] == [cb.PROCEDURAL_SEED] * cb.OBJECTS_PER_SCENE
+    assert [o["source"]["proc_seed"] for o in scene["objects"]] == [protocol.PROCEDURAL_SEED] * protocol.OBJECTS_PER_SCENE
 
     # Finished rounds are not run again.
-    monkeypatch.setattr(cb, "run_round", lambda task: pytest.fail("a finished round ran again"))
+    monkeypatch.setattr(bench_rounds, "run_round", lambda task: pytest.fail("a finished round ran again"))
     assert cb.main(argv) == 0
     monkeypatch.undo()
     first = (out / "attempts.json").read_text()
@@ -223,10 +225,10 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     top-down grasp 2.5 cm below its top -> executor, 1 s hold, shake, removal."""
     import dataclasses
 
-    from sim_bridge.object_grasps import procedural_sources
-    from sim_bridge.sim_world import R_TOP_DOWN
+    from sim_bridge.datagen.object_grasps import procedural_sources
+    from sim_bridge.world import R_TOP_DOWN
 
-    source = procedural_sources(cb.PROCEDURAL_POOL, cb.PROCEDURAL_SEED)[1]
+    source = procedural_sources(protocol.PROCEDURAL_POOL, protocol.PROCEDURAL_SEED)[1]
     mesh = source.load().collision_mesh()
     height_m = float(mesh.extents[2])
     assert mesh.extents[0] < 0.05 and 0.08 < height_m < 0.15  # a slim upright cylinder
@@ -234,7 +236,7 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     X[:3, 3] = [0.15, 0.15, 0.051 - mesh.bounds[0][2]]
     scene = {"scene_id": "packed_t", "arrangement": "packed",
              "objects": [{"source": dataclasses.asdict(source), "name": "c", "X_task_object": X.tolist()}]}
-    cell = cb.SimCell(scene, 0.5, cb.Protocol(time_step_s=0.002), tsdf.TSDFVolume(resolution=40))
+    cell = sim_cell.SimCell(scene, 0.5, protocol.Protocol(time_step_s=0.002), tsdf.TSDFVolume(resolution=40))
     view = cell.observe()
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R_TOP_DOWN, [0.15, 0.15, 0.05 + height_m - 0.025]

@@ -3,7 +3,7 @@ import sys
 
 import pytest
 
-from sim_bridge.datagen import sim_settings
+from sim_bridge.datagen.cli import sim_settings
 
 
 def test_sim_setting_overrides_are_typed_and_validated():

@@ -1,7 +1,7 @@
 import numpy as np
 
-from sim_bridge import hand_collision
-from sim_bridge.hand_model import MAX_STROKE_M
+from sim_bridge.physics import hand_collision
+from sim_bridge.physics.hand_model import MAX_STROKE_M
 
 
 def top_down(p):

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from sim_bridge.antipodal_sampling import SamplingSettings
-from sim_bridge.datagen import run_object_stage
-from sim_bridge.object_grasps import load_table, mesh_sources
+from sim_bridge.datagen.antipodal_sampling import SamplingSettings
+from sim_bridge.datagen.cli import run_object_stage
+from sim_bridge.datagen.object_grasps import load_table, mesh_sources
 
 GRASPS = 4
 BLOCK = 2
@@ -142,8 +142,8 @@ def test_killed_run_resumes_to_the_same_tables(good_meshes, reference, tmp_path)
 
 
 def test_a_table_only_rebuilds_the_object_it_was_made_for(reference, good_meshes, tmp_path):
-    from sim_bridge.object_grasps import object_from_table
-    from sim_bridge.objects import ObjectError
+    from sim_bridge.datagen.object_grasps import object_from_table
+    from sim_bridge.physics.objects import ObjectError
 
     t = load_table(pathlib.Path(reference) / "objects" / "cylinder50.npz")
     assert object_from_table(t, [good_meshes]).name == "cylinder50"

@@ -2,8 +2,8 @@ import json
 
 import numpy as np
 
-from sim_bridge.data_report import main
-from sim_bridge.object_grasps import MODE_NAMES
+from sim_bridge.datagen.data_report import main
+from sim_bridge.datagen.object_grasps import MODE_NAMES
 
 
 def write_table(d, name, modes, scores):

@@ -5,12 +5,11 @@ approach inside the executor's cone, open hand clear of the table."""
 import numpy as np
 import pytest
 
-from sim_bridge import hand_collision
-from sim_bridge.antipodal_sampling import (SamplingSettings, sample_grasp_candidates,
-                                           sample_grasp_candidates_at_rest)
-from sim_bridge.objects import procedural_object
-from sim_bridge.resting_poses import find_resting_poses
-from sim_bridge.scenes import TABLE_HEIGHT_M, arrange
+from sim_bridge.datagen.antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
+from sim_bridge.datagen.resting_poses import find_resting_poses
+from sim_bridge.physics import hand_collision
+from sim_bridge.physics.objects import procedural_object
+from sim_bridge.physics.scenes import TABLE_HEIGHT_M, arrange
 
 RESTING = SamplingSettings(sampler="resting")
 

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from sim_bridge import hand_collision
-from sim_bridge.antipodal_sampling import sample_grasp_candidates
-from sim_bridge.gravity_projection import gravity_rejection_score
-from sim_bridge.object_grasps import MODE_NAMES, load_table
-from sim_bridge.scene_dataset import run_scene_stage
-from sim_bridge.scenes import TABLE_HEIGHT_M
-from sim_bridge.voxel_labels import RESOLUTION, VOLUME_SIZE_M
+from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
+from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
+from sim_bridge.datagen.scene_dataset import run_scene_stage
+from sim_bridge.datagen.voxel_labels import RESOLUTION
+from sim_bridge.physics import hand_collision
+from sim_bridge.physics.gravity_projection import gravity_rejection_score
+from sim_bridge.physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 
 from test_datagen_objects import write_urdf
 

@@ -1,6 +1,6 @@
 import numpy as np
 
-from sim_bridge.voxel_labels import dense_labels, voxel_labels
+from sim_bridge.datagen.voxel_labels import dense_labels, voxel_labels
 
 
 def pose(p, R=np.eye(3)):

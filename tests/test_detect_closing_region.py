@@ -11,7 +11,7 @@ from gravgrasp_detector import detection
 from gravgrasp_detector.model_file import load_model
 from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
 from robotiq_driver.hand_geometry import FINGER_TIP_Z_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_FACE_Z_M
-from sim_bridge.depth_rendering import DepthRenderer, look_at
+from sim_bridge.physics.depth_rendering import DepthRenderer, look_at
 
 MODEL = pathlib.Path(__file__).resolve().parents[1] / "models" / "gravgrasp.pt"
 SIZE = 0.30

@@ -210,3 +210,19 @@ def test_bad_grids_raise_one_clear_error(grid, cause, words):
     with pytest.raises(InputError) as e:
         detection.detect_grasps(networks.GraspNet().eval(), grid, VS)
     assert e.value.cause == cause and words in str(e.value)
+
+
+def test_validness_ranking_for_a_binary_model():
+    """rank_by="validness" (a --target binary model): ranked by validness, min_score_n in N
+    does not apply, and each grasp's score_n is the validness it was ranked by."""
+    torch.manual_seed(0)
+    net = networks.GraspNet().eval()
+    grid = table_grid().numpy()
+    by_score = detection.detect_grasps(net, grid, VS, validness_threshold=0.0, min_score_n=1e6, max_grasps=10)
+    by_validness = detection.detect_grasps(net, grid, VS, validness_threshold=0.0, min_score_n=1e6, max_grasps=10,
+                                           rank_by="validness")
+    assert not by_score and by_validness  # no grasp holds 1e6 N; probabilities ignore it
+    assert [g.validness for g in by_validness] == sorted((g.validness for g in by_validness), reverse=True)
+    assert all(g.score_n == pytest.approx(g.validness) for g in by_validness)
+    with pytest.raises(ValueError, match="rank_by"):
+        detection.detect_grasps(net, grid, VS, rank_by="probability")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim_bridge.gravity_projection import GRAVITY_PROJECTION_EPS, gravity_rejection_score
+from sim_bridge.physics.gravity_projection import GRAVITY_PROJECTION_EPS, gravity_rejection_score
 
 SCORES = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])  # +x -x +y -y +z -z
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from gravgrasp_detector import grasp_execution as ge
-from sim_bridge.clutter_benchmark import SimArm, SimGripper
-from sim_bridge.sim_world import SceneConfig, SimWorld, WorldSettings
+from sim_bridge.benchmark.sim_cell import SimArm, SimGripper
+from sim_bridge.world import SceneConfig, SimWorld, WorldSettings
 
 ATTEMPT_2_POSE = [0.18374999589286745, 0.16874999622814357, 0.1762499960605055,
                   0.8358444544943904, -0.242684961399421, -0.47382294037862444, -0.13401447150398044]

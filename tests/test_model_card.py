@@ -62,7 +62,7 @@ def test_card_has_metrics_data_command_and_machine(run):
     recorded = model_file.load_model(model)[1]["training_data"]
     assert f"command (as `train` recorded it): `{recorded['command']}`" in card
     assert recorded["machine"]["cpu"] in card and "torch threads 1" in card
-    assert f"`{model_card.sha256_file(model)}`" in card
+    assert f"`{model_file.file_sha256(model)}`" in card
     assert "_Not run yet: no PNGs" in card and model_card.HUMAN_PLACEHOLDER in card
 
 

@@ -1,4 +1,4 @@
-"""The paper's qualitative check (sim_bridge/qualitative.py, `make qualitative`).
+"""The paper's qualitative check (sim_bridge/benchmark/qualitative.py, `make qualitative`).
 
 The scene must reach the TSDF where the paper puts it (surfaces at the cylinder and the
 box, nothing else above the table), the plotted outputs must be the detector's, and the
@@ -10,7 +10,7 @@ import torch
 from PIL import Image
 
 from gravgrasp_detector import model_file, networks, tsdf
-from sim_bridge import qualitative
+from sim_bridge.benchmark import qualitative
 
 
 def _distance_to_cylinder_m(p):

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from sim_bridge.objects import procedural_object
-from sim_bridge.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, arrange
+from sim_bridge.physics.objects import procedural_object
+from sim_bridge.physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, arrange
 
 
 def posed_vertices(obj, X):

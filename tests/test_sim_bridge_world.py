@@ -1,14 +1,14 @@
-"""The sim bridge's world (sim_bridge.sim_world) in-process: arm stand-in, fingers driven
+"""The sim bridge's world (sim_bridge.world) in-process: arm stand-in, fingers driven
 through the robotiq FingerPlant, gravity, depth rendering, ground truth."""
 import numpy as np
 import pytest
 
 from robotiq_driver.gripper_emulator import GripperEmulator
 from robotiq_driver.gripper_registers import COMMAND_ADDRESS, GripperCommand, ObjectStatus
-from sim_bridge.grasp_simulation import SimSettings
-from sim_bridge.objects import procedural_object
-from sim_bridge.scenes import TABLE_HEIGHT_M
-from sim_bridge.sim_world import R_TOP_DOWN, SceneConfig, SimWorld, WorldSettings, pose
+from sim_bridge.physics.contact import SimSettings
+from sim_bridge.physics.objects import procedural_object
+from sim_bridge.physics.scenes import TABLE_HEIGHT_M
+from sim_bridge.world import R_TOP_DOWN, SceneConfig, SimFingerPlant, SimWorld, WorldSettings, pose
 
 CENTRE = (0.15, 0.15)
 
@@ -45,7 +45,7 @@ def test_top_down_grasp_lifts_an_upright_cylinder(contact_model):
         assert ok, message
     np.testing.assert_allclose(world.tcp_pose(), grasp, atol=1e-6)
 
-    reading = close_fingers(world.finger_plant())
+    reading = close_fingers(SimFingerPlant(world))
     assert reading.blocked, reading
     assert reading.width_m == pytest.approx(0.05, abs=0.004)  # the cylinder's diameter
 
@@ -65,12 +65,12 @@ def test_fingers_close_fully_on_nothing_and_an_obstacle_stops_the_arm():
     # Closing on nothing, the pads meet short of the closed limit: the gripper reports
     # that stop as an object at its motor position (as a real 2F-85 can), and the
     # executor's empty-closed calibration is what tells it from a held object.
-    reading = close_fingers(world.finger_plant())
+    reading = close_fingers(SimFingerPlant(world))
     assert reading.blocked and reading.width_m < 0.002, reading
     assert world.finger_width_m() < 0.002  # pads meet
 
     # a finger position target short of closed: reached, not blocked
-    reading = close_fingers(world.finger_plant(), width_m=0.0, target_m=0.04)
+    reading = close_fingers(SimFingerPlant(world), width_m=0.0, target_m=0.04)
     assert not reading.blocked and reading.width_m == 0.04
     assert world.finger_width_m() == pytest.approx(0.04, abs=0.0015)
 
@@ -94,7 +94,7 @@ def test_fingers_close_fully_on_nothing_and_an_obstacle_stops_the_arm():
     np.testing.assert_allclose(world.tcp_pose(), turned, atol=1e-6)
 
     # the stand-in cannot push the palm through the box (and the box through the table)
-    close_fingers(world.finger_plant(), width_m=0.04, target_m=0.085)
+    close_fingers(SimFingerPlant(world), width_m=0.04, target_m=0.085)
     box_top = TABLE_HEIGHT_M + 0.08
     ok, message = world.move_tcp(pose(R_TOP_DOWN, (0.03, 0.03, box_top + 0.08)), 0.25)
     assert ok, message
@@ -118,7 +118,7 @@ def test_emulator_on_the_sim_clock_reports_contact_on_an_object():
     ok, message = world.move_tcp(pose(R_TOP_DOWN, (*CENTRE, TABLE_HEIGHT_M + 0.045)), 0.25)
     assert ok, message
     clock = [0.0]
-    emulator = GripperEmulator(plant=world.finger_plant(advances_time=True), activation_time_s=0.0,
+    emulator = GripperEmulator(plant=SimFingerPlant(world, advances_time=True), activation_time_s=0.0,
                                initial_width_m=world.finger_width_m(), clock=lambda: clock[0])
     emulator.write_registers(COMMAND_ADDRESS, GripperCommand(activate=True).to_registers())
     emulator.advance()

@@ -1,4 +1,4 @@
-"""Physics sanity of the Drake 2F-85 grasp simulation (sim_bridge.grasp_simulation).
+"""Physics sanity of the Drake 2F-85 grasp simulation (sim_bridge.physics.grasp_simulation).
 
 Each test runs real SAP/hydroelastic simulations (dt 2 ms, ~1-3 s of wall time each).
 """
@@ -8,9 +8,10 @@ import pathlib
 import numpy as np
 import pytest
 
-from sim_bridge import hand_model
-from sim_bridge.grasp_simulation import GraspSimulator, SimSettings, measure_squeeze_force_n
-from sim_bridge.objects import procedural_object
+from sim_bridge.physics import hand_model
+from sim_bridge.physics.contact import SimSettings
+from sim_bridge.physics.grasp_simulation import GraspSimulator, measure_squeeze_force_n
+from sim_bridge.physics.objects import procedural_object
 
 FAST = SimSettings(time_step_s=2e-3)
 
@@ -110,7 +111,7 @@ def test_grip_force_is_calibrated_to_40_newtons():
 def test_score_does_not_depend_on_the_ramp_rate():
     """Peak-resistance scoring at the label settings (dt 1 ms): 200 vs 800 N/s on one
     settled power grasp, pulling the cylinder along its axis (+x) and out (+z)."""
-    from sim_bridge.disturbance_rejection import DIRECTIONS_TCP, measure_departure_force
+    from sim_bridge.physics.disturbance_rejection import DIRECTIONS_TCP, measure_departure_force
 
     cyl = procedural_object("cylinder", (0.065, 0.2), mass_kg=0.5)
     sim = GraspSimulator(cyl, SimSettings.for_labels())
@@ -138,7 +139,7 @@ VGN_OBJECT = (pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes" 
 
 @pytest.mark.skipif(not VGN_OBJECT.is_file(), reason="shared VGN meshes not present")
 def test_vgn_mesh_object_is_grasped_from_the_top():
-    from sim_bridge.objects import load_mesh_object
+    from sim_bridge.physics.objects import load_mesh_object
 
     obj = load_mesh_object(VGN_OBJECT)  # 0.15 kg, 45 mm wide, two convex pieces
     X = np.diag([1.0, -1.0, -1.0, 1.0])  # approach along -z of the object
@@ -196,8 +197,8 @@ LIGHT_VGN_OBJECT = pathlib.Path("/work/shared/meshes/vgn_train/8bb057d18e2fcc477
 def test_light_object_that_leaves_within_one_window_still_scores_its_resistance():
     """A 3 g object in a power grasp holds ~6-8 N along +-x and leaves the hand 16-18 ms
     into the ramp, before the first 20 ms momentum window: it used to score 0 N."""
-    from sim_bridge.disturbance_rejection import DIRECTIONS_TCP, measure_departure_force
-    from sim_bridge.objects import load_mesh_object
+    from sim_bridge.physics.disturbance_rejection import DIRECTIONS_TCP, measure_departure_force
+    from sim_bridge.physics.objects import load_mesh_object
 
     X = np.array([[-0.241498, -0.002766, -0.970397, -0.029043], [0.295963, 0.952142, -0.076369, -0.001715],
                   [0.924167, -0.305645, -0.229122, -0.009968], [0.0, 0.0, 0.0, 1.0]])

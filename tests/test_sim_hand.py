@@ -7,7 +7,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
-from sim_bridge import hand_model
+from sim_bridge.physics import hand_model
 
 
 def build(**kw):

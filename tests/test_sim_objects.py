@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from sim_bridge import hand_model
-from sim_bridge.objects import (ObjectError, load_mesh_object, parse_object_arg, procedural_object,
-                                random_procedural_objects)
+from sim_bridge.physics import hand_model
+from sim_bridge.physics.objects import ObjectError, load_mesh_object, parse_object_arg, procedural_object, random_procedural_objects
 
 VGN = pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes" / "vgn_train"
 if not VGN.is_dir():

@@ -1,7 +1,8 @@
 """ROS 2 node `detect`: TSDF volume -> ranked gravity-rejection grasps.
 
 Subscribes  tsdf           gravgrasp_msgs/TSDFVolume (reliable, transient local, depth 1)
-Publishes   grasps         gravgrasp_msgs/GraspArray, sorted by score (highest first)
+Publishes   grasps         gravgrasp_msgs/GraspArray, sorted by score (highest first; a model
+                           trained with --target binary: by validness, score 0)
             grasp_markers  visualization_msgs/MarkerArray, gripper outlines by score
 Only the newest volume is processed: a volume arriving while the network runs
 replaces any waiting one, so no queue grows when input outpaces detection.
@@ -78,7 +79,9 @@ def startup_lines(model_path, metadata, precision, threads):
     net, grid, td = metadata["network"], metadata["tsdf"], metadata.get("training_data") or {}
     lines = [f"model: {shown}",
              f"model input: {grid['resolution']}^3 TSDF, {grid['voxel_size_m'] * 1e3:g} mm voxels",
-             f"model output: {td.get('target', 'gravity-score')}, rotation {net['rotation_representation']}"]
+             f"model output: {model_file.training_target(metadata)}, rotation {net['rotation_representation']}"]
+    if model_file.ranking(metadata) == "validness":
+        lines.append("grasps ranked by validness (a binary model: no score in N)")
     if "scenes_train" in td:
         lines.append(f"model trained: {td['scenes_train']} + {td.get('scenes_val', 0)} scenes"
                      + (f" from {td['data']}" if td.get("data") else "")
@@ -125,6 +128,9 @@ class DetectNode(Node):
         except ValueError as e:
             raise ModelFileError(f"precision parameter: {e}") from None
         self.model_name = os.path.basename(self.model_path)
+        # A binary model (trained with --target binary) is ranked by its validness, a
+        # success probability; its grasps carry gravity_rejection_score 0 (no newtons).
+        self.rank_by = model_file.ranking(self.metadata)
         self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
         self.grasps_pub = self.create_publisher(GraspArray, "grasps", 10)
         self.markers_pub = self.create_publisher(MarkerArray, "grasp_markers", 10)
@@ -175,6 +181,7 @@ class DetectNode(Node):
             surface_distance_voxels=param("surface_distance_voxels"),
             nms_radius_voxels=param("nms_radius_voxels"),
             precision=self.precision,
+            rank_by=self.rank_by,
         )
         self.problems.clear()
         latency_s = time.monotonic() - received
@@ -182,7 +189,8 @@ class DetectNode(Node):
         out.detection_latency = Duration(sec=int(latency_s), nanosec=int((latency_s % 1) * 1e9))
         pregrasp = float(param("pregrasp_distance_m"))
         out.grasps = [
-            GraspMsg(pose=pose_msg_from_matrix(g.pose), gravity_rejection_score=g.score_n, validness=g.validness,
+            GraspMsg(pose=pose_msg_from_matrix(g.pose), validness=g.validness,
+                     gravity_rejection_score=g.score_n if self.rank_by == "score" else 0.0,
                      voxel_index=list(g.voxel_index), pregrasp_distance_m=pregrasp)
             for g in grasps
         ]
@@ -193,7 +201,8 @@ class DetectNode(Node):
         now = time.monotonic()
         if now - self._last_latency_log >= 5.0:  # the first one, then every 5 s
             self._last_latency_log = now
-            best = f", best {grasps[0].score_n:.2f} N" if grasps else ""
+            best = "" if not grasps else (f", best {grasps[0].score_n:.2f} N" if self.rank_by == "score"
+                                          else f", best validness {grasps[0].validness:.2f}")
             self.get_logger().info(
                 f"{len(grasps)} grasps{best}; latency {latency_s * 1e3:.1f} ms "
                 f"(median {statistics.median(self.latencies_ms):.1f} ms of last {len(self.latencies_ms)}); "

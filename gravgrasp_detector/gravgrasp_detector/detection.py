@@ -104,6 +104,9 @@ def check_grid(tsdf_grid, resolution):
         )
 
 
+RANKINGS = ("score", "validness")
+
+
 @torch.inference_mode()
 def detect_grasps(
     model,
@@ -117,14 +120,22 @@ def detect_grasps(
     nms_radius_voxels=2,
     precision="fp32",
     min_surface_voxels=1,
+    rank_by="score",
 ):
     """Ranked grasps (list of Grasp, highest score first) in the TSDF's frame.
+
+    rank_by: "score" (the gravity-rejection score [N], at least min_score_n) or
+    "validness" (a model trained with --target binary: its validness is its success
+    probability; min_score_n does not apply, and each Grasp's score_n carries the
+    validness it was ranked by). `model_file.ranking(metadata)` says which a model needs.
 
     model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
     value convention. origin: the grid corner in the task frame (3-vector or 4x4).
     precision: "bf16" (autocast + channels_last_3d), "fp32", or "auto" (bf16 where
     the CPU has native bf16). Raises InputError for an unusable grid.
     """
+    if rank_by not in RANKINGS:
+        raise ValueError(f"rank_by {rank_by!r}: use one of {RANKINGS}")
     precision = resolve_precision(precision)
     grid = torch.as_tensor(np.asarray(tsdf_grid, dtype=np.float32))
     check_grid(grid, model.resolution)
@@ -137,10 +148,13 @@ def detect_grasps(
     # mantissa bits (0.125 N at 30 N) and let rounding decide near-ties.
     half = half.float()
     score_n, validness_logit = model.score_and_validness_from_half(half)
+    validness = torch.sigmoid(validness_logit[0])
+    if rank_by == "validness":
+        score_n, min_score_n = validness[None], 0.0
     return select_grasps(
         grid,
         score_n[0],
-        torch.sigmoid(validness_logit[0]),
+        validness,
         lambda index: model.rotation_at(half, index, half=True),
         model.rotation_representation,
         voxel_size_m,

@@ -17,7 +17,6 @@ directory (RUN_DIR: model.pt, history.json, training_curve.png as `train` writes
 
 import argparse
 import datetime
-import hashlib
 import json
 import math
 import os
@@ -27,7 +26,7 @@ import subprocess
 import sys
 import tempfile
 
-from . import model_file
+from . import atomic_files, model_file
 
 HUMAN_START, HUMAN_END = "<!-- human-notes: start -->", "<!-- human-notes: end -->"
 HUMAN_PLACEHOLDER = (
@@ -52,14 +51,6 @@ SLICE_PNGS = ("slice_z150mm.png", "slice_z080mm.png", "slice_y000mm.png", "depth
 
 class CardError(RuntimeError):
     """Input the card cannot be written from; the message says what to do."""
-
-
-def sha256_file(path):
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def load_history(run_dir):
@@ -109,7 +100,7 @@ def data_summary(data_dir, tables_dir):
     with tempfile.TemporaryDirectory(prefix="model_card_") as tmp:
         os.symlink(tables_dir, pathlib.Path(tmp) / "objects")
         os.symlink(scenes_dir, pathlib.Path(tmp) / "scenes")
-        proc = subprocess.run([sys.executable, "-m", "sim_bridge.data_report", tmp,
+        proc = subprocess.run([sys.executable, "-m", "sim_bridge.datagen.data_report", tmp,
                                "--png", str(pathlib.Path(tmp) / "report.png")],
                               capture_output=True, text=True)
     if proc.returncode != 0:
@@ -168,7 +159,7 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
     target = td.get("target", "?")
     rows = [
         ("file", f"`{model_path}` ({os.path.getsize(model_path) / 1e6:.2f} MB)"),
-        ("sha256", f"`{sha256_file(model_path)}`"),
+        ("sha256", f"`{model_file.file_sha256(model_path)}`"),
         ("created", f"{metadata.get('created_utc', '?')} (torch {metadata.get('torch_version', '?')})"),
         ("architecture", f"`{metadata['architecture']}` (VGN 3D FCN, score / validness / rotation heads)"),
         ("rotation representation", f"`{net.get('rotation_representation')}`"),
@@ -268,17 +259,14 @@ def main(argv=None):
     try:
         run_model = run / "model.pt"
         if model != run_model and run_model.is_file() and model.is_file() \
-                and sha256_file(model) != sha256_file(run_model):
+                and model_file.file_sha256(model) != model_file.file_sha256(run_model):
             raise CardError(f"{model} is not the model of {run} (sha256 differs from {run_model}): copy that "
                             "model.pt there, or give the run directory that produced this model")
         text = render_card(run, model, card, qualitative, args.tables, argv)
     except (CardError, model_file.ModelFileError) as err:
         print(f"model_card: {err}", file=sys.stderr)
         return 2
-    card.parent.mkdir(parents=True, exist_ok=True)
-    tmp = card.with_name(card.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(card)
+    atomic_files.save_bytes(card, text.encode())
     print(card)
     return 0
 

@@ -21,12 +21,13 @@ those paths.
 """
 
 import datetime
+import hashlib
 import os
 import posixpath
 
 import torch
 
-from . import networks, tsdf
+from . import atomic_files, networks, tsdf
 
 FORMAT = "gravgrasp-model"
 FORMAT_VERSION = 1
@@ -95,11 +96,28 @@ def save_model(path, model, tsdf_volume_or_metadata, training_data=None):
     }
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     payload = {"format": FORMAT, "format_version": FORMAT_VERSION, "metadata": metadata, "state_dict": state}
-    path = os.fspath(path)
-    tmp = f"{path}.tmp-{os.getpid()}"
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
+    atomic_files.save_torch(path, payload)
     return metadata
+
+
+def training_target(metadata: dict) -> str:
+    """'gravity-score' or 'binary' (training.py records it in training_data.target)."""
+    return str((metadata.get("training_data") or {}).get("target", "gravity-score"))
+
+
+def ranking(metadata: dict) -> str:
+    """How detection ranks this model's grasps (detection.detect_grasps' rank_by):
+    "validness" for a model trained with `--target binary`, else "score"."""
+    return "validness" if training_target(metadata) == "binary" else "score"
+
+
+def file_sha256(path) -> str:
+    """sha256 of a file (a model's identity in cards and benchmark rounds)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def load_model(path):

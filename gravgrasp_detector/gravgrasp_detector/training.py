@@ -39,10 +39,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from . import model_file, networks, rotation, tsdf
+from . import atomic_files, model_file, networks, rotation, tsdf
 
 G_MPS2 = 9.81
-# Mode names as sim_bridge.object_grasps writes them; scene files carry their own
+# Mode names as sim_bridge.datagen.object_grasps writes them; scene files carry their own
 # `mode_names`, which win.
 DEFAULT_MODE_NAMES = ("power", "precision", "none")
 
@@ -270,12 +270,6 @@ def evaluate(model, scenes, config, device):
 
 # --- the loop --------------------------------------------------------------------------
 
-def _atomic_save(obj, path):
-    tmp = f"{path}.tmp-{os.getpid()}"
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
 def train(config: TrainConfig, progress=True, argv=None):
     """Train (or resume) and write model.pt, checkpoint.pt, history.json and
     training_curve.png into config.out. Returns the final validation metrics."""
@@ -344,9 +338,9 @@ def train(config: TrainConfig, progress=True, argv=None):
                   **{f"train_{k}": v for k, v in sums.items()}, **{f"val_{k}": v for k, v in metrics.items()}}
         history.append(record)
         print(json.dumps(record), flush=True)
-        _atomic_save({"config": dataclasses.asdict(config), "model": model.state_dict(),
-                      "optimizer": optimizer.state_dict(), "epoch": epoch + 1, "history": history,
-                      "torch_rng": torch.get_rng_state()}, checkpoint_path)
+        atomic_files.save_torch(checkpoint_path, {
+            "config": dataclasses.asdict(config), "model": model.state_dict(), "optimizer": optimizer.state_dict(),
+            "epoch": epoch + 1, "history": history, "torch_rng": torch.get_rng_state()})
 
     argv = list(sys.argv[1:] if argv is None else argv)
     summary = {
@@ -405,10 +399,8 @@ def plot_history(history, path):
     for ax in axes:
         ax.set_xlabel("epoch")
     fig.tight_layout()
-    tmp = f"{path}.tmp.png"
-    fig.savefig(tmp, dpi=90)
+    atomic_files.save_figure(path, fig, dpi=90)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:

@@ -33,81 +33,53 @@ import threading
 import time
 
 import numpy as np
-import rclpy
 from gravgrasp_msgs.msg import ObjectStates
 from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMass
-from geometry_msgs.msg import Pose, PoseStamped
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
+from gravgrasp_detector.poses import PoseError
+from gravgrasp_detector.ros_interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
 from robotiq_driver.gripper_emulator import GripperEmulator
 from robotiq_driver.pty_modbus_server import PtyModbusServer
 
-from .grasp_simulation import SimSettings
+from ..physics.contact import SimSettings
+from ..world import CameraSettings, RealTimeRunner, SceneConfig, SimFingerPlant, SimWorld, WorldSettings
 
 OVERCURRENT_FAULT = 0x0E  # gFLT: a major fault, the fingers stop until a reset
-from .sim_world import CameraSettings, RealTimeRunner, SceneConfig, SimWorld, WorldSettings
-
-
-def _desc(text, low=None, high=None, integer=False):
-    d = ParameterDescriptor(description=text, read_only=True)
-    if low is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
-    return d
-
-
-def pose_to_matrix(p: Pose) -> np.ndarray:
-    q = p.orientation
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    X[:3, 3] = [p.position.x, p.position.y, p.position.z]
-    return X
-
-
-def matrix_to_pose(X) -> Pose:
-    p = Pose()
-    p.position.x, p.position.y, p.position.z = (float(v) for v in X[:3, 3])
-    q = Rotation.from_matrix(X[:3, :3]).as_quat()
-    p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = (float(v) for v in q)
-    return p
 
 
 class SimNode(Node):
     def __init__(self):
         super().__init__("sim")
         p = self.declare_parameter
-        seed = p("seed", 0, _desc("seed of the procedural scene (objects and their placement)")).value
-        n_objects = p("n_objects", 3, _desc("objects drawn for the scene", 1, 10, integer=True)).value
-        arrangement = p("arrangement", "packed", _desc("'packed' (upright, side by side) or 'pile' (dropped)")).value
-        mesh_dir = p("mesh_dir", "", _desc("directory of URDF/OBJ objects (e.g. VGN's); '' = procedural primitives")).value
-        mass = p("object_mass_kg", 0.0, _desc("mass of every object, kg; 0 = each object's own", 0.0, 100.0)).value
-        cam_pos = p("camera_position", [0.15, -0.125, 0.526], _desc("camera optical centre [x, y, z] in the task frame, m")).value
-        cam_target = p("camera_target", [0.15, 0.15, 0.05], _desc("point the camera looks at [x, y, z], task frame, m")).value
-        width = p("image_width", 640, _desc("depth image width, px", 16, 4096, integer=True)).value
-        height = p("image_height", 480, _desc("depth image height, px", 16, 4096, integer=True)).value
-        focal = p("focal_length_px", 540.0, _desc("pinhole focal length, px", 10.0, 10000.0)).value
-        self.rate_hz = p("publish_rate_hz", 2.0, _desc("depth, camera info, camera pose and object states rate, Hz", 0.1, 60.0)).value
-        self.encoding = p("depth_encoding", "32FC1", _desc("'32FC1' (metres) or '16UC1' (millimetres), REP-118")).value
-        self.frame_id = p("frame_id", "task", _desc("the task frame: camera pose, object states and move targets are in it")).value
-        self.camera_frame_id = p("camera_frame_id", "sim_camera_optical", _desc("frame_id of the depth image (optical frame)")).value
-        link = p("gripper_link", "/tmp/gravgrasp_sim_gripper", _desc("symlink to the pty where the emulated 2F-85 answers Modbus RTU")).value
-        contact = p("contact_model", "hydroelastic", _desc("'hydroelastic' (paper) or 'point' (~3x faster, less stable)")).value
-        dt = p("time_step_s", 2e-3, _desc("Drake time step, s", 1e-4, 1e-2)).value
-        rt = p("real_time_rate", 1.0, _desc("upper bound of simulated s per wall s", 0.1, 10.0)).value
-        self.default_speed = p("default_speed_mps", 0.1, _desc("TCP speed when a request gives 0, m/s", 0.001, 1.0)).value
-        max_speed = p("max_speed_mps", 0.25, _desc("TCP speed cap, m/s", 0.001, 1.0)).value
-        max_force = p("max_contact_force_n", 60.0, _desc("net contact force on the hand that stops a motion, N", 1.0, 1000.0)).value
-        ws_min = p("workspace_min", [-0.15, -0.15, 0.05], _desc("arm stand-in reach, TCP box minimum [x, y, z], m")).value
-        ws_max = p("workspace_max", [0.45, 0.45, 0.80], _desc("arm stand-in reach, TCP box maximum [x, y, z], m")).value
+        seed = p("seed", 0, described("seed of the procedural scene (objects and their placement)", read_only=True)).value
+        n_objects = p("n_objects", 3, int_range("objects drawn for the scene", 1, 10, read_only=True)).value
+        arrangement = p("arrangement", "packed", described("'packed' (upright, side by side) or 'pile' (dropped)", read_only=True)).value
+        mesh_dir = p("mesh_dir", "", described("directory of URDF/OBJ objects (e.g. VGN's); '' = procedural primitives", read_only=True)).value
+        mass = p("object_mass_kg", 0.0, float_range("mass of every object, kg; 0 = each object's own", 0.0, 100.0, read_only=True)).value
+        cam_pos = p("camera_position", [0.15, -0.125, 0.526], described("camera optical centre [x, y, z] in the task frame, m", read_only=True)).value
+        cam_target = p("camera_target", [0.15, 0.15, 0.05], described("point the camera looks at [x, y, z], task frame, m", read_only=True)).value
+        width = p("image_width", 640, int_range("depth image width, px", 16, 4096, read_only=True)).value
+        height = p("image_height", 480, int_range("depth image height, px", 16, 4096, read_only=True)).value
+        focal = p("focal_length_px", 540.0, float_range("pinhole focal length, px", 10.0, 10000.0, read_only=True)).value
+        self.rate_hz = p("publish_rate_hz", 2.0, float_range("depth, camera info, camera pose and object states rate, Hz", 0.1, 60.0, read_only=True)).value
+        self.encoding = p("depth_encoding", "32FC1", described("'32FC1' (metres) or '16UC1' (millimetres), REP-118", read_only=True)).value
+        self.frame_id = p("frame_id", "task", described("the task frame: camera pose, object states and move targets are in it", read_only=True)).value
+        self.camera_frame_id = p("camera_frame_id", "sim_camera_optical", described("frame_id of the depth image (optical frame)", read_only=True)).value
+        link = p("gripper_link", "/tmp/gravgrasp_sim_gripper", described("symlink to the pty where the emulated 2F-85 answers Modbus RTU", read_only=True)).value
+        contact = p("contact_model", "hydroelastic", described("'hydroelastic' (paper) or 'point' (~3x faster, less stable)", read_only=True)).value
+        dt = p("time_step_s", 2e-3, float_range("Drake time step, s", 1e-4, 1e-2, read_only=True)).value
+        rt = p("real_time_rate", 1.0, float_range("upper bound of simulated s per wall s", 0.1, 10.0, read_only=True)).value
+        self.default_speed = p("default_speed_mps", 0.1, float_range("TCP speed when a request gives 0, m/s", 0.001, 1.0, read_only=True)).value
+        max_speed = p("max_speed_mps", 0.25, float_range("TCP speed cap, m/s", 0.001, 1.0, read_only=True)).value
+        max_force = p("max_contact_force_n", 60.0, float_range("net contact force on the hand that stops a motion, N", 1.0, 1000.0, read_only=True)).value
+        ws_min = p("workspace_min", [-0.15, -0.15, 0.05], described("arm stand-in reach, TCP box minimum [x, y, z], m", read_only=True)).value
+        ws_max = p("workspace_max", [0.45, 0.45, 0.80], described("arm stand-in reach, TCP box maximum [x, y, z], m", read_only=True)).value
 
         if self.encoding not in ("32FC1", "16UC1"):
             raise ValueError(f"depth_encoding {self.encoding!r}: use '32FC1' or '16UC1'")
@@ -127,7 +99,7 @@ class SimNode(Node):
         self.world = SimWorld(scene, settings)
         self.get_logger().info(f"scene: {', '.join(self.world.object_names()) or 'no object'}")
 
-        self.finger_plant = self.world.finger_plant(advances_time=False)
+        self.finger_plant = SimFingerPlant(self.world, advances_time=False)
         self.emulator = GripperEmulator(plant=self.finger_plant, initial_width_m=self.world.finger_width_m())
         self.server = PtyModbusServer(self.emulator, link_path=link or None).start()
         self.runner = RealTimeRunner(self.world, self.finger_plant, real_time_rate=rt).start()
@@ -187,7 +159,7 @@ class SimNode(Node):
         # A frame costs ~0.1 s of CPU that the physics then lacks: render only for a
         # subscriber, and only after the scene moved (else republish the last frame).
         want_depth = self.pub_depth.get_subscription_count() > 0
-        key = (id(self.world.w), round(self.world.time_s, 4))
+        key = (self.world.scene_generation, round(self.world.time_s, 4))
         if want_depth and key != self._render_key:
             self._depth = self.world.render_depth()
             self._render_key = key
@@ -217,13 +189,13 @@ class SimNode(Node):
         info.p = [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
         cam = PoseStamped()
         cam.header.stamp, cam.header.frame_id = stamp, self.frame_id
-        cam.pose = matrix_to_pose(T)
+        cam.pose = pose_msg_from_matrix(T)
         msg = ObjectStates()
         msg.header.stamp, msg.header.frame_id = stamp, self.frame_id
         msg.sim_time_s = self.world.time_s
         for s in states:
             msg.names.append(s.name)
-            msg.poses.append(matrix_to_pose(s.X_task_object))
+            msg.poses.append(pose_msg_from_matrix(s.X_task_object))
             msg.mass_kg.append(s.mass_kg)
             msg.height_above_table_m.append(s.height_above_table_m)
             msg.in_hand.append(s.in_hand)
@@ -243,14 +215,10 @@ class SimNode(Node):
         frame = target.header.frame_id
         if frame not in ("", self.frame_id):
             raise ValueError(f"target frame {frame!r} is unknown: give the TCP pose in {self.frame_id!r}")
-        p, q = target.pose.position, target.pose.orientation
-        values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w]
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError("target pose has NaN or infinite values")
-        norm = math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2)
-        if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"target orientation is not a unit quaternion (|q| = {norm:.4f})")
-        return pose_to_matrix(target.pose)
+        try:
+            return matrix_from_pose_msg(target.pose)  # PoseError is a ValueError
+        except PoseError as e:
+            raise ValueError(f"target pose: {e}") from None
 
     def _on_move(self, request, response):
         response.joint_positions = []  # the stand-in has no joints
@@ -335,25 +303,8 @@ class SimNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = SimNode()
-    except (ValueError, OSError, RuntimeError) as e:
-        print(f"sim: error: {e}", file=sys.stderr, flush=True)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node("sim", SimNode, (ValueError, OSError, RuntimeError), threads=4, args=args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

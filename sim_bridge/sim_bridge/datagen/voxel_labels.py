@@ -11,7 +11,8 @@ origin + (i + 0.5, j + 0.5, k + 0.5) * voxel_size.
 
 import numpy as np
 
-VOLUME_SIZE_M = 0.30
+from ..physics.scenes import VOLUME_SIZE_M
+
 RESOLUTION = 40
 
 

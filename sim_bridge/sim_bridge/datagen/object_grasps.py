@@ -41,14 +41,15 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from . import atomic_files
+from gravgrasp_detector import atomic_files
+from ..parallel import task_seed
+from ..physics.grasp_simulation import MODES
+from ..physics.hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
+from ..physics.objects import ObjectError, load_mesh_object, random_procedural_objects
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
-from .hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
-from .objects import ObjectError, load_mesh_object, random_procedural_objects
-from .parallel import task_seed
 from .resting_poses import RestingPoses, find_resting_poses
 
-MODE_NAMES = ("power", "precision", "none")
+MODE_NAMES = MODES  # the tables' `mode` indexes these (grasp_simulation's order)
 CONTACT_LINK_NAMES = PALM_LINKS + LEFT_LINKS + RIGHT_LINKS
 
 
@@ -218,7 +219,8 @@ def run_chunk(task: ObjectChunk):
 
 
 def _run_chunk(task, obj):
-    from .grasp_simulation import GraspSimulator, SimSettings
+    from ..physics.grasp_simulation import GraspSimulator
+    from ..physics.contact import SimSettings
 
     settings = task.sim_settings or SimSettings()
     seed = block_seed(task.master_seed, task.source.name, task.chunk)

@@ -16,78 +16,18 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydrake.geometry import (
-    AddCompliantHydroelasticProperties,
-    AddContactMaterial,
-    ProximityProperties,
-)
 from pydrake.math import RigidTransform
-from pydrake.multibody.plant import (
-    AddMultibodyPlant,
-    CoulombFriction,
-    MultibodyPlantConfig,
-)
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import DiagramBuilder
 
 from . import hand_model
-from .disturbance_rejection import (
-    DIRECTIONS_TCP,
-    ForceRampDisturbance,
-    measure_departure_force,
-)
+from .actuators import GripForceController, driver_torque_nm
+from .contact import SimSettings, proximity_properties
+from .disturbance_rejection import DIRECTIONS_TCP, ForceRampDisturbance, measure_departure_force
 from .objects import ObjectSpec
 
 MODES = ("power", "precision", "none")
-
-
-@dataclass
-class SimSettings:
-    """Defaults are fast (dt 2 ms) but over-read friction-limited scores by 35-70%.
-    For training labels use `SimSettings.for_labels()` (dt 1 ms, where scores agree with
-    dt 0.5 ms; README: time step, ramp-rate dependence)."""
-
-    time_step_s: float = 2e-3
-    contact_model: str = "hydroelastic"  # or "point"
-    grip_force_n: float = 40.0  # squeeze between the pads (calibrated, see README)
-    static_friction: float = 0.75  # paper value; SAP ignores it (measured, README)
-    dynamic_friction: float = 0.5
-    hunt_crossley_dissipation_s_per_m: float = 5.0  # paper value; SAP ignores it
-    hydroelastic_modulus_pa: float = 1e8
-    # SAP's dissipation is a Kelvin-Voigt relaxation time. Drake's default 0.1 s turns
-    # the tilted rim faces of a hydroelastic patch into a speed-dependent drag (friction
-    # read 1.3 mu; scores grew with the ramp rate). None: 0 at dt <= 1 ms (scores
-    # converged and rate-independent); 1 ms at coarser steps, where 0 let a box squeezed
-    # at its edges snap out of the hand at 1 m/s; 2.5 ms for point contact (rattles).
-    relaxation_time_s: float | None = None
-    closing_speed_rad_s: float = 2.0  # driver joint; open -> closed in ~0.4 s
-    max_close_time_s: float = 1.5
-    settle_speed_m_s: float = 5e-3  # object (and pads) slower than this = settled
-    force_ramp_rate_n_s: float = 400.0
-    max_force_n: float = 200.0  # ramp cap; a score equal to this means "held to the cap"
-    departure_travel_m: float = 0.02  # COM travel that ends a ramp ("left the hand")
-    resistance_window_s: float = 0.02  # momentum window for the resisted force
-
-    @classmethod
-    def for_labels(cls, **overrides) -> "SimSettings":
-        """dt 1 ms, 400 N/s: scores within 2% of dt 0.5 ms (bar a capped direction) and
-        within 2.5% of 200 N/s, except pushing along the closing axis (8%) (README)."""
-        return cls(**{"time_step_s": 1e-3, "force_ramp_rate_n_s": 400.0, **overrides})
-
-    def effective_relaxation_time_s(self) -> float:
-        if self.relaxation_time_s is not None:
-            return self.relaxation_time_s
-        if self.contact_model == "point":
-            return 2.5e-3
-        return 0.0 if self.time_step_s <= 1e-3 * (1 + 1e-9) else 1e-3
-
-    def validate(self):
-        if self.contact_model not in ("hydroelastic", "point"):
-            raise ValueError(f"contact_model {self.contact_model!r}: use 'hydroelastic' or 'point'")
-        if not (0 < self.time_step_s <= 0.01):
-            raise ValueError(f"time_step_s {self.time_step_s}: use (0, 0.01]")
-        if self.dynamic_friction > self.static_friction:
-            raise ValueError("dynamic friction must not exceed static friction")
 
 
 @dataclass
@@ -107,51 +47,6 @@ class GraspOutcome:
     @property
     def min_score_n(self) -> float:
         return float(self.scores_n.min())
-
-
-def proximity_properties(settings: SimSettings) -> ProximityProperties:
-    """The paper's contact parameters; hand and object are both compliant."""
-    props = ProximityProperties()
-    AddContactMaterial(
-        dissipation=settings.hunt_crossley_dissipation_s_per_m,
-        friction=CoulombFriction(settings.static_friction, settings.dynamic_friction),
-        properties=props,
-    )
-    props.AddProperty("material", "relaxation_time", settings.effective_relaxation_time_s())
-    if settings.contact_model == "hydroelastic":
-        AddCompliantHydroelasticProperties(0.01, settings.hydroelastic_modulus_pa, props)
-    return props
-
-
-class GripForceController(LeafSystem):
-    """The 2F-85's single actuator: close at a set speed with a torque limit.
-
-    tau = clip(kd (v_close - v), 0, tau_max) on both driver joints (the coupler
-    constraint splits it). Free fingers close at ~v_close; once the object stops them,
-    the torque saturates at tau_max, which sets the grip force (calibrated so the pads
-    squeeze `grip_force_n`). Input: plant state; output: actuation (left, right).
-    """
-
-    def __init__(self, plant, hand, tau_max_nm, closing_speed_rad_s):
-        super().__init__()
-        nq = plant.num_positions()
-        self._iv = nq + hand.driver_joints[0].velocity_start()
-        self._tau = float(tau_max_nm)
-        self._v = float(closing_speed_rad_s)
-        self._kd = 4.0 * self._tau / self._v
-        self.DeclareVectorInputPort("state", plant.num_multibody_states())
-        self.DeclareVectorOutputPort("actuation", 2, self._calc)
-
-    def _calc(self, context, output):
-        v = self.get_input_port().Eval(context)[self._iv]
-        tau = float(np.clip(self._kd * (self._v - v), 0.0, self._tau))
-        output.SetFromVector([tau, tau])
-
-
-def driver_torque_nm(grip_force_n: float) -> float:
-    """Driver torque that squeezes `grip_force_n` between parallel pads 50 mm apart
-    (`measure_squeeze_force_n`; -8%..+17% over 10-80 mm, README)."""
-    return grip_force_n * hand_model.DRIVER_TORQUE_PER_NEWTON_NM
 
 
 class GraspSimulator:

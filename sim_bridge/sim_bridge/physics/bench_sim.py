@@ -18,7 +18,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from .grasp_simulation import GraspSimulator, SimSettings
+from .contact import SimSettings
+from .grasp_simulation import GraspSimulator
 
 # The paper: 12-18 h per object on an AWS m5.2xlarge (8 vCPU).
 PAPER_CORE_HOURS_PER_OBJECT = (12 * 8, 18 * 8)

@@ -19,7 +19,7 @@ import sys
 
 import numpy as np
 
-from . import atomic_files
+from gravgrasp_detector import atomic_files
 
 
 def _tables_dir(d):

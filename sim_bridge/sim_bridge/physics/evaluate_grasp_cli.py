@@ -84,7 +84,8 @@ def save_picture(sim, path: str, title: str):
 
 def main(argv=None) -> int:
     from .disturbance_rejection import DIRECTION_NAMES
-    from .grasp_simulation import GraspSimulator, SimSettings
+    from .grasp_simulation import GraspSimulator
+    from .contact import SimSettings
     from .objects import ObjectError, parse_object_arg
 
     p = argparse.ArgumentParser(prog="evaluate_grasp", description=__doc__.split("\n\n")[0])

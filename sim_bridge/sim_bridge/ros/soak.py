@@ -72,7 +72,7 @@ def percentile(values, q):
 
 def render_view(seed: int, n_objects: int):
     """(depth float32 [m], CameraIntrinsics, T_task_camera) of the sim camera's view."""
-    from .sim_world import SceneConfig, SimWorld, WorldSettings
+    from ..world import SceneConfig, SimWorld, WorldSettings
 
     world = SimWorld(SceneConfig(seed=seed, n_objects=n_objects), WorldSettings())
     return world.render_depth()

@@ -105,8 +105,8 @@ class ObjectSpec:
         from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
         if proximity_properties is None:
-            from .grasp_simulation import SimSettings
-            from .grasp_simulation import proximity_properties as paper_properties
+            from .contact import SimSettings
+            from .contact import proximity_properties as paper_properties
 
             proximity_properties = paper_properties(SimSettings())
         spec = self if mass_kg is None else self.with_mass(mass_kg)

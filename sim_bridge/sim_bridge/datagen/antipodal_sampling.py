@@ -31,7 +31,7 @@ import numpy as np
 import open3d as o3d
 import trimesh
 
-from . import hand_collision
+from ..physics import hand_collision
 
 FRICTION_COEFFICIENT = 0.75
 MAX_WIDTH_M = 0.085          # 2F-85 stroke

@@ -35,12 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from . import atomic_files, hand_collision
-from .gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
+from gravgrasp_detector import atomic_files
+from ..parallel import make_executor, run_tasks, task_seed
+from ..physics import hand_collision
+from ..physics.gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
+from ..physics.scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from .object_grasps import MODE_NAMES, load_table, object_from_table
-from .parallel import make_executor, run_tasks, task_seed
 from .resting_poses import RestingPoses
-from .scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from .voxel_labels import RESOLUTION, voxel_labels
 
 APPROACH_M = 0.05  # straight approach checked for collisions (pre-grasp distance)
@@ -83,7 +84,7 @@ def run_scene(task: SceneTask):
 def _run_scene(task):
     from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
 
-    from .depth_rendering import DepthRenderer, random_view_on_hemisphere
+    from ..physics.depth_rendering import DepthRenderer, random_view_on_hemisphere
 
     rng = np.random.default_rng(task_seed(task.master_seed, "scene", task.index))
     for _ in range(5):  # redraw (same rng: still deterministic) if every object left the table

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import spearmanr
 
-from .gravity_projection import gravity_rejection_score
+from ..parallel import make_executor, run_tasks
+from ..physics.gravity_projection import gravity_rejection_score
 from .object_grasps import load_table, object_from_table
-from .parallel import make_executor, run_tasks
 
 DEFAULT_SETTINGS = ("cap100_rate800=max_force_n=100,force_ramp_rate_n_s=800",
                     "cap60_rate800=max_force_n=60,force_ramp_rate_n_s=800")
@@ -45,8 +45,8 @@ class StudyTask:
 
 
 def run_study_task(task: StudyTask):
-    from .datagen import sim_settings
-    from .grasp_simulation import GraspSimulator
+    from .cli import sim_settings
+    from ..physics.grasp_simulation import GraspSimulator
 
     t = load_table(task.table_path)
     base = json.loads(str(t["sim_settings"]))
@@ -181,7 +181,7 @@ def main(argv=None):
         if c["kept"] and (best is None or c["cpu_s_per_held_grasp"] < report["settings"][best]["cpu_s_per_held_grasp"]):
             best = name
     pathlib.Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    from . import atomic_files
+    from gravgrasp_detector import atomic_files
     atomic_files.save_json(args.out, report)
     name = best or "reference"
     value = report["settings"][best]["cpu_s_per_held_grasp"] if best else report["reference"]["cpu_s_per_held_grasp"]

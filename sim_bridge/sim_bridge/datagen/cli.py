@@ -23,11 +23,10 @@ from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 
-from . import atomic_files
-from .objects import ObjectError
-from .object_grasps import (ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, read_name_list,
-                            run_chunk)
-from .parallel import make_executor, run_tasks
+from gravgrasp_detector import atomic_files
+from ..parallel import make_executor, run_tasks
+from ..physics.objects import ObjectError
+from .object_grasps import ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, read_name_list, run_chunk
 
 
 def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, scheduler=None,
@@ -131,7 +130,7 @@ def sim_settings(overrides=()):
     """SimSettings with "key=value" overrides (types from the field defaults)."""
     import dataclasses
 
-    from .grasp_simulation import SimSettings
+    from ..physics.contact import SimSettings
 
     fields = {f.name: f for f in dataclasses.fields(SimSettings)}
     values = {}

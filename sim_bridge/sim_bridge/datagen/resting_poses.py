@@ -105,7 +105,7 @@ def find_resting_poses(spec, min_probability=0.01, max_poses=64, confirm=True, s
     X, p = X[keep], p[keep]
     if not confirm:
         return RestingPoses(X, p / p.sum(), np.zeros(len(p), bool))
-    from .scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, build_scene_diagram, settle
+    from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, build_scene_diagram, settle
 
     settings = SceneSettings(max_settle_time_s=settle_time_s)
     scene = build_scene_diagram([spec], settings)

@@ -1,7 +1,8 @@
 """Crash-safe file writes: write a temporary file beside the target, fsync, rename.
 
 A reader (or a resumed run) sees either the old file or the complete new one,
-never a partial file, even if the process is killed mid-write.
+never a partial file, even if the process is killed mid-write. Every file the project
+writes for later (tables, scenes, rounds, checkpoints, models, plots) goes through here.
 """
 
 import io
@@ -45,6 +46,22 @@ def save_json(path, obj):
 
 def save_bytes(path, data: bytes):
     _replace_with(path, data)
+
+
+def save_figure(path, fig, **savefig_kwargs):
+    """A matplotlib figure (`fig.savefig`), atomically; the format follows the suffix."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=pathlib.Path(path).suffix.lstrip(".") or "png", **savefig_kwargs)
+    _replace_with(path, buf.getvalue())
+
+
+def save_torch(path, obj):
+    """torch.save, atomically (torch is imported by the caller that has the object)."""
+    import torch  # only here: the other writers must not pull torch into data generation
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    _replace_with(path, buf.getvalue())
 
 
 def remove_stale_temporaries(directory):

@@ -30,8 +30,10 @@ import sys
 import numpy as np
 import trimesh
 
-from .depth_rendering import DepthRenderer, look_at
-from .scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
+from gravgrasp_detector import atomic_files
+
+from ..physics.depth_rendering import DepthRenderer, look_at
+from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 
 SCENE_ORIGIN_TASK_M = np.array([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M])
 # (name, kind, dims [m], base centre in scene coordinates [m])
@@ -42,7 +44,7 @@ OBJECTS = (
 CAMERA_SCENE_M = (0.5, 0.0, 0.5)
 # (axis normal to the slice, position in scene coordinates [m]); z is height above the table
 SLICES = (("z", 0.15), ("z", 0.08), ("y", 0.0))
-# VGN's simulated camera, as sim_bridge.scene_dataset renders the training scenes
+# VGN's simulated camera, as sim_bridge.datagen.scene_dataset renders the training scenes
 IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX = 640, 480, 540.0
 FIG_SIZE_IN, DPI = (16.5, 5.2), 100  # each slice PNG is 1650 x 520 px
 _AXES = "xyz"
@@ -231,10 +233,8 @@ def _save_atomically(fig, path):
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=DPI)
+    atomic_files.save_figure(path, fig, dpi=DPI)
     plt.close(fig)
-    tmp.replace(path)
 
 
 def slice_file_name(axis, position_scene_m):

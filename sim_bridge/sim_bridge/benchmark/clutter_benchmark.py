@@ -1,0 +1,147 @@
+"""Clutter-removal benchmark against object weight (paper Sec. V-B/V-C, issue 8):
+`ros2 run sim_bridge benchmark`. No rclpy: the Drake world, the TSDF, the detector and
+the grasp executor run in-process, in simulated time.
+
+Protocol (one *round* = one method, one object weight, one scene):
+- Scenes: 5 objects, `packed` and `pile` in turn, drawn and arranged once per scene
+  from a seed derived from the master seed (scenes/<id>.json), so every method and
+  weight clears the same scenes. Every object of a round gets the round's weight.
+- Objects: procedural primitives with procedural seed 1000 by default (training uses
+  seed 0: disjoint), or `--meshes DIR` (URDF/OBJ). Objects wider than the 85 mm stroke
+  in every direction (minimum width of the collision hull) are removed before the run
+  and listed (excluded_objects.json, results.md), as the paper did.
+- Start: the scene settles at the round's weight (a heavier pile shifts; objects that
+  leave the cube then are `left_before_start`, not counted).
+- Attempt: the hand goes home (open, out of the cube) -> one depth image from the
+  fixed camera (CameraSettings: 0.55 m from the table centre, 60 deg elevation) -> a
+  fresh TSDF -> detection -> the best-ranked grasp that passes the executor's own
+  checks (workspace box, approach cone, open hand vs TSDF; the hand floats as in the
+  paper, no arm IK) -> GraspExecutor (open, pre-grasp, approach, close at 40 N, lift
+  0.15 m, gOBJ check) -> hold 1.0 s, then shake (3 cm up/down, then 3 cm along x and
+  back, min-jerk at 0.25 m/s: peak 3.4 m/s², up to 1.35 g on the grip vertically) ->
+  success iff an object is still between both fingers and >= 5 cm above the table.
+  Lifted objects are removed; objects that leave the cube are `fell_off` (not cleared)
+  and stay in the world (removing a falling body made Drake segfault later).
+- A round ends when the table is clear, after 2 consecutive failures, when nothing is
+  detected or no detected grasp passes the checks, or at 3 x objects attempts.
+- SR = successes / attempts, CR = successes / objects, pooled over rounds, with 95 %
+  Wilson intervals.
+
+Methods are model files (`METHODS`); a missing one is skipped with a note. The rotation
+ablation's extra models run at `ABLATION_*WEIGHTS_KG` only. A model
+trained with `--target binary` ranks by validness (a success probability) and no
+min-score-in-N threshold applies to it.
+
+Engineering: one task per round through parallel.run_tasks (process pool or Dask);
+each round's result is written atomically to rounds/<method>/<weight>/<scene>.json
+with the model file's sha256, so a rerun skips finished rounds (and redoes those of a
+retrained model); everything runs in simulated time, so a seed gives the same attempts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from concurrent.futures.process import BrokenProcessPool
+
+from ..physics.objects import ObjectError
+from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, METHODS, QUICK_ABLATION_WEIGHTS_KG,
+                       QUICK_WEIGHTS_KG, Protocol, weight_key)
+from .rounds import resolve_methods, run_benchmark
+
+# CLI
+
+
+def parse_weights(text) -> list:
+    try:
+        weights = [float(w) for w in text.split(",")]
+    except ValueError:
+        weights = []
+    if not weights or not all(math.isfinite(w) and w > 0 for w in weights):
+        raise ValueError(f"weights {text!r}: give positive kg values separated by commas, e.g. 0.1,1.5")
+    return weights
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description="Clutter-removal benchmark against object weight (issue 8).")
+    p.add_argument("--out", default=None, help="output directory (resumes there); default out/benchmark[_quick]")
+    p.add_argument("--quick", action="store_true", help=f"2 scenes (1 packed, 1 pile), weights "
+                   f"{', '.join(map(str, QUICK_WEIGHTS_KG))} kg: CI minutes")
+    p.add_argument("--scenes", type=int, default=None, help="scenes (packed and pile alternate); default 10, quick 2")
+    p.add_argument("--weights", default=None, help="comma-separated kg; default 0.1,0.3,0.5,0.8,1.0,1.5")
+    p.add_argument("--ablation-weights", default=None,
+                   help=f"weights of {', '.join(ABLATION_METHODS)}; default 0.5 (quick 0.1), or --weights when given")
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, of {', '.join(METHODS)}")
+    p.add_argument("--models-dir", default="models")
+    p.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
+                   help="a model file for a method (also a new method name)")
+    p.add_argument("--meshes", default=None, help="URDF/OBJ directory instead of procedural objects")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count; 0 = this process)")
+    p.add_argument("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786")
+    p.add_argument("--validness-threshold", type=float, default=Protocol.validness_threshold)
+    p.add_argument("--min-score-n", type=float, default=Protocol.min_score_n,
+                   help="ignore grasps scored below this [N] (not applied to binary models)")
+    p.add_argument("--hold-s", type=float, default=Protocol.hold_s)
+    p.add_argument("--shake-m", type=float, default=Protocol.shake_m, help="0 = no shake")
+    p.add_argument("--time-step-s", type=float, default=Protocol.time_step_s)
+    p.add_argument("--relaxation-time-s", type=float, default=Protocol.relaxation_time_s,
+                   help="SAP relaxation time of every contact; default: SimSettings' choice for the time step")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+
+    n_scenes = args.scenes or (2 if args.quick else 10)
+    try:
+        weights = parse_weights(args.weights) if args.weights else list(
+            QUICK_WEIGHTS_KG if args.quick else FULL_WEIGHTS_KG)
+        ablation = (parse_weights(args.ablation_weights) if args.ablation_weights else weights if args.weights
+                    else list(QUICK_ABLATION_WEIGHTS_KG if args.quick else FULL_ABLATION_WEIGHTS_KG))
+    except ValueError as e:
+        print(f"benchmark: {e}", file=sys.stderr)
+        return 2
+    overrides = {}
+    for item in args.model:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            print(f"benchmark: --model {item!r}: use NAME=PATH", file=sys.stderr)
+            return 2
+        overrides[name] = path
+    names = [m for m in args.methods.split(",") if m] + [m for m in overrides if m not in args.methods.split(",")]
+    try:
+        methods = resolve_methods(names, args.models_dir, overrides)
+    except ValueError as e:
+        print(f"benchmark: {e}", file=sys.stderr)
+        return 2
+    if not methods:
+        print("benchmark: no method has a model file: train them (models/) or pass --model NAME=PATH", file=sys.stderr)
+        return 2
+    protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
+                        hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
+                        relaxation_time_s=args.relaxation_time_s)
+    out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
+    t0 = time.monotonic()
+    try:
+        rows = run_benchmark(out, methods, weights, n_scenes, args.seed, args.meshes, protocol,
+                             args.workers, args.scheduler, progress=not args.no_progress,
+                             ablation_weights_kg=ablation)
+    except (ObjectError, ValueError) as e:
+        print(f"benchmark: {e}", file=sys.stderr)
+        return 2
+    except BrokenProcessPool as e:
+        print(f"benchmark: worker processes keep dying ({e}); finished rounds are kept: rerun the same "
+              "command to resume", file=sys.stderr)
+        return 3
+    incomplete = any(r["rounds"] < n_scenes for r in rows)
+    print(f"benchmark: {out}/results.md, attempts.json, sr_cr_vs_weight.png ({time.monotonic() - t0:.0f} s)"
+          + ("; some rounds failed: rerun to retry them" if incomplete else ""), flush=True)
+    for r in rows:
+        print(f"CR_{r['method']}_{weight_key(r['mass_kg'])}={r['CR']:.2f}")
+    for r in rows:
+        print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
+    return 1 if incomplete else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,158 @@
+"""The benchmark's outputs: SR/CR with Wilson intervals per method and weight, results.md,
+the summaries and the SR/CR-vs-weight plot."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from gravgrasp_detector import atomic_files
+from ..physics.scenes import ARRANGEMENTS
+from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, weight_key
+
+# statistics
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple:
+    """95 % Wilson score interval of a binomial proportion; (nan, nan) for n = 0."""
+    if n <= 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    # exact bounds at 0 and n (the formula gives them up to rounding)
+    return (0.0 if successes == 0 else max(0.0, centre - half), 1.0 if successes == n else min(1.0, centre + half))
+
+
+# outputs
+
+
+def summarize(rounds: list, plan: dict) -> list:
+    """plan: {method: [weights]} -> one row per method and weight."""
+    rows = []
+    for method, weights_kg in plan.items():
+        for w in weights_kg:
+            rs = [r for r in rounds if r["method"] == method and r["mass_kg"] == float(w)]
+            s = sum(r["successes"] for r in rs)
+            a = sum(len(r["attempts"]) for r in rs)
+            o = sum(r["n_objects"] for r in rs)
+            rows.append({"method": method, "mass_kg": float(w), "rounds": len(rs), "objects": o, "attempts": a,
+                         "left_before_start": sum(len(r.get("left_before_start", [])) for r in rs),
+                         "fell_off": sum(len(r["fell_off"]) for r in rs),
+                         "successes": s, "SR": s / a if a else math.nan, "SR_ci95": wilson_interval(s, a),
+                         "CR": s / o if o else math.nan, "CR_ci95": wilson_interval(s, o)})
+    return rows
+
+
+def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
+    rounds = []
+    for method, weights_kg in plan.items():
+        for w in weights_kg:
+            for sid in ids:
+                p = out / "rounds" / method / weight_key(w) / f"{sid}.json"
+                if p.exists():
+                    r = json.loads(p.read_text())
+                    if r.get("model_sha256") == shas[method]:
+                        rounds.append(r)
+    attempts = []
+    for r in rounds:
+        for i, a in enumerate(r["attempts"]):
+            attempts.append({"method": r["method"], "mass_kg": r["mass_kg"], "scene_id": r["scene_id"],
+                             "attempt": i + 1, "object": a["lifted"], "pose": a["pose"],
+                             "score": a["score"], "score_unit": "probability" if r["target"] == "binary" else "N",
+                             "validness": a["validness"], "rank": a["rank"], "outcome": a["outcome"],
+                             "success": a["success"], "reason": a["reason"]})
+    atomic_files.save_json(out / "attempts.json", {
+        "schema_version": SCHEMA_VERSION, "attempts": attempts,
+        "rounds": [{k: r[k] for k in ("method", "mass_kg", "scene_id", "objects", "n_objects", "end",
+                                      "successes", "fell_off", "left_before_start", "sim_time_s")} | {"attempts": len(r["attempts"])}
+                   for r in rounds]})
+    rows = summarize(rounds, plan)
+    atomic_files.save_json(out / "results.json", rows)
+    expected = len(ids)
+    lines = ["# Clutter-removal benchmark against object weight", "",
+             f"Scenes: {expected} ({', '.join(ARRANGEMENTS)} alternating), {OBJECTS_PER_SCENE} objects each, "
+             f"objects: {'meshes in ' + str(meshes_dir) if meshes_dir else f'procedural (seed {PROCEDURAL_SEED})'}; "
+             f"hold {protocol.hold_s:.1f} s, shake +-{protocol.shake_m * 100:.0f} cm, grip {protocol.grip_force_n:.0f} N, "
+             f"dt {protocol.time_step_s * 1e3:g} ms. SR = successes / attempts, CR = successes / objects, "
+             "[95 % Wilson interval].", "",
+             "| method | weight [kg] | rounds | SR | SR 95 % CI | CR | CR 95 % CI | successes / attempts / objects "
+             "| left before start / fell off |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['rounds']}/{expected} | {_pct(r['SR'])} | "
+                     f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
+                     f"{r['successes']} / {r['attempts']} / {r['objects']} | "
+                     f"{r['left_before_start']} / {r['fell_off']} |")
+    lines += ["", *outcome_lines(rounds, plan)]
+    ends = {}
+    for r in rounds:
+        ends[r["end"]] = ends.get(r["end"], 0) + 1
+    lines += ["", "Round ends: " + (", ".join(f"{k} {v}" for k, v in sorted(ends.items())) or "none"), ""]
+    lines.append(f"Excluded objects ({len(excluded)}): " + (", ".join(
+        f"{e['name']} ({e.get('min_width_mm', '?')} mm)" if "min_width_mm" in e else f"{e['name']} ({e['reason']})"
+        for e in excluded) or "none"))
+    atomic_files.save_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
+    plot(rows, plan, out / "sr_cr_vs_weight.png")
+    return rows
+
+
+def outcome_lines(rounds, plan) -> list:
+    """Markdown table: how every attempt ended, per method and weight (why SR is what it is)."""
+    counts = {}
+    for r in rounds:
+        row = counts.setdefault((r["method"], float(r["mass_kg"])), {})
+        for a in r["attempts"]:
+            row[a["outcome"]] = row.get(a["outcome"], 0) + 1
+    outcomes = ["success", *sorted({o for row in counts.values() for o in row} - {"success"})]
+    lines = ["Outcomes of the attempts:", "", "| method | weight [kg] | " + " | ".join(outcomes) + " |",
+             "| --- | --- |" + " --- |" * len(outcomes)]
+    for method, weights_kg in plan.items():
+        for w in weights_kg:
+            row = counts.get((method, float(w)))
+            if row:
+                lines.append(f"| {method} | {w:g} | " + " | ".join(str(row.get(o, 0)) for o in outcomes) + " |")
+    return lines
+
+
+def _pct(x):
+    return "—" if math.isnan(x) else f"{100 * x:.1f} %"
+
+
+def _ci(ci):
+    return "—" if math.isnan(ci[0]) else f"{100 * ci[0]:.1f}–{100 * ci[1]:.1f} %"
+
+
+def plot(rows, methods, path):
+    import io
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for ax, key in zip(axes, ("SR", "CR")):
+        for method in methods:
+            rs = [r for r in rows if r["method"] == method and not math.isnan(r[key])]
+            if not rs:
+                continue
+            x = np.array([r["mass_kg"] for r in rs])
+            y = np.array([r[key] for r in rs])
+            lo = y - np.array([r[f"{key}_ci95"][0] for r in rs])
+            hi = np.array([r[f"{key}_ci95"][1] for r in rs]) - y
+            ax.errorbar(x, 100 * y, yerr=100 * np.vstack([lo, hi]), marker="o", capsize=3, label=method)
+        ax.set_xlabel("object weight [kg]")
+        ax.set_ylabel(f"{key} [%]")
+        ax.set_ylim(-2, 102)  # points at 0 % and 100 % stay visible
+        ax.grid(alpha=0.3)
+    axes[0].set_title("success ratio")
+    axes[1].set_title("clear ratio")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    atomic_files.save_bytes(path, buf.getvalue())

@@ -1,0 +1,209 @@
+"""One benchmark round as a worker task (detection per method, `run_round`) and the run
+over methods x weights x scenes (`run_benchmark`): resumable, one atomic JSON per round."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import time
+from concurrent.futures.process import BrokenProcessPool
+
+import numpy as np
+import torch
+
+from gravgrasp_detector.detection import detect_grasps
+from gravgrasp_detector.model_file import check_volume, file_sha256, load_model, ranking, training_target
+from gravgrasp_detector.tsdf import TSDFVolume
+
+from gravgrasp_detector import atomic_files
+from ..parallel import make_executor, run_tasks, task_seed
+from .protocol import (ABLATION_METHODS, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, Protocol,
+                       SceneDrawTask, clear_table, make_scene, object_pool, scene_ids, weight_key)
+from .report import write_outputs
+from .sim_cell import SimCell
+
+# detection per method
+
+
+def make_detector(model, metadata, protocol: Protocol):
+    """tsdf tuple -> ranked grasps. Score methods rank by the gravity-rejection score [N]
+    with min_score_n; binary methods rank by validness (their success probability), as the
+    detect node serves them."""
+    rank_by = ranking(metadata)
+
+    def detect(tsdf):
+        grid, voxel_size_m, origin = tsdf
+        if not np.any(grid):
+            return []
+        return detect_grasps(model, grid, voxel_size_m, origin, validness_threshold=protocol.validness_threshold,
+                             min_score_n=protocol.min_score_n, max_grasps=protocol.max_grasps, rank_by=rank_by)
+    return detect
+
+
+# one round (a worker task)
+
+
+@dataclasses.dataclass(frozen=True)
+class RoundTask:
+    method: str
+    model_path: str
+    model_sha256: str
+    mass_kg: float
+    scene: dict
+    protocol: Protocol
+
+
+def run_round(task: RoundTask) -> dict:
+
+
+    torch.set_num_threads(1)  # one core per round: the pool gives the parallelism
+    t0 = time.process_time()
+    model, metadata = load_model(task.model_path)
+    volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
+    check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
+    cell = SimCell(task.scene, task.mass_kg, task.protocol, volume)
+    settle_s = cell.settle()
+    left_before_start = cell.remove_fallen()  # not counted: no method could have grasped them
+    names = cell.objects_on_table()
+    n_objects = len(names)
+    record = clear_table(cell, make_detector(model, metadata, task.protocol), n_objects,
+                         task.protocol.attempts_per_object)
+    return {"schema_version": SCHEMA_VERSION, "method": task.method, "model_sha256": task.model_sha256,
+            "target": training_target(metadata), "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
+            "objects": names, "n_objects": n_objects, "left_before_start": left_before_start,
+            "settle_s": round(settle_s, 2), **record,
+            "successes": sum(a["success"] for a in record["attempts"]),
+            "sim_time_s": round(cell.world.time_s, 3), "cpu_s": round(time.process_time() - t0, 1)}
+
+
+# the run
+
+
+
+
+def resolve_methods(names, models_dir, overrides=None, note=print):
+    """{method: model path} of the methods whose model file exists; a note per missing one."""
+    overrides = overrides or {}
+    found = {}
+    for name in names:
+        if name not in METHODS and name not in overrides:
+            raise ValueError(f"unknown method {name!r}: use {', '.join(METHODS)} (or --model NAME=PATH)")
+        path = pathlib.Path(overrides.get(name) or pathlib.Path(models_dir) / METHODS[name])
+        if path.is_file():
+            found[name] = str(path.resolve())
+        else:
+            note(f"benchmark: skipping {name}: model file {path} not found")
+    return found
+
+
+def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
+    if method in ABLATION_METHODS and ablation_weights_kg is not None:
+        return [float(w) for w in ablation_weights_kg]
+    return [float(w) for w in weights_kg]
+
+
+def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
+                  protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
+                  ablation_weights_kg=None) -> list:
+    """Run (or resume) every round; write the outputs; return the summary rows.
+    `methods`: {name: model path}; ABLATION_METHODS run at `ablation_weights_kg` if given."""
+    plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_files.remove_stale_temporaries(out)
+    config = {"seed": seed, "meshes": str(pathlib.Path(meshes_dir).resolve()) if meshes_dir else None,
+              "procedural_seed": None if meshes_dir else PROCEDURAL_SEED, "objects_per_scene": OBJECTS_PER_SCENE,
+              "protocol": dataclasses.asdict(protocol)}
+    config_path = out / "config.json"
+    if config_path.exists():
+        previous = json.loads(config_path.read_text())
+        if previous != config:
+            raise ValueError(f"{out} holds a run with another configuration ({config_path}); "
+                             "use another --out, or delete it to start over")
+    atomic_files.save_json(config_path, config)
+
+    usable, excluded = object_pool(meshes_dir)
+    atomic_files.save_json(out / "excluded_objects.json", list(excluded))
+    ids = scene_ids(n_scenes)
+    scenes, pending = {}, []
+    for sid in ids:
+        path = out / "scenes" / f"{sid}.json"
+        if path.exists():
+            scenes[sid] = json.loads(path.read_text())
+        else:
+            pending.append(SceneDrawTask(sid, task_seed(seed, "scene", sid), tuple(usable)))
+
+    shas = {m: file_sha256(p) for m, p in methods.items()}
+    rounds_dir = out / "rounds"
+
+    def round_path(method, mass_kg, sid):
+        return rounds_dir / method / weight_key(mass_kg) / f"{sid}.json"
+
+    def done(method, w, sid):
+        rp = round_path(method, w, sid)
+        return rp.exists() and json.loads(rp.read_text()).get("model_sha256") == shas[method]
+
+    def on_scene(task, scene):
+        atomic_files.save_json(out / "scenes" / f"{task.scene_id}.json", scene)
+        scenes[task.scene_id] = scene
+
+    def on_round(task, result):
+        if "error" in result:
+            errors.append((task, result["error"]))
+        else:
+            atomic_files.save_json(round_path(task.method, task.mass_kg, task.scene["scene_id"]), result)
+
+    errors = []
+    # A native crash (Drake) kills its worker and breaks the whole pool: finished rounds
+    # are on disk, so start a new pool for the rest, a few times.
+    for pool_generation in range(MAX_POOLS):
+        try:
+            with _executor(workers, scheduler) as ex:
+                pending = [t for t in pending if t.scene_id not in scenes]
+                if pending:
+                    run_tasks(ex, make_scene, pending, on_scene, desc="scenes", progress=progress)
+                # Scene-major order: a run cut short has every method on the same scenes.
+                tasks = [RoundTask(m, path, shas[m], w, scenes[sid], protocol)
+                         for sid in ids for w in sorted({w for ws in plan.values() for w in ws})
+                         for m, path in methods.items() if w in plan[m] and not done(m, w, sid)]
+                errors.clear()
+                if tasks:
+                    run_tasks(ex, _guarded_round, tasks, on_round, desc="rounds", progress=progress)
+            break
+        except BrokenProcessPool as e:
+            if pool_generation == MAX_POOLS - 1:
+                raise
+            note(f"benchmark: a worker process died ({e}); continuing with a new pool")
+    for task, message in errors:
+        note(f"benchmark: round {task.method} {task.mass_kg} kg {task.scene['scene_id']} failed: {message}")
+    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir)
+
+
+def _guarded_round(task):
+    """A round that raises is reported (and retried by the next run), not fatal to the others."""
+    try:
+        return run_round(task)
+    except Exception as e:  # Drake, a bad object, a model that does not fit the volume
+        return {"error": f"{type(e).__name__}: {str(e).strip().splitlines()[0][:300] if str(e).strip() else ''}"}
+
+
+class _InProcess:
+    """A sequential executor (workers=0): for tests and debugging."""
+    def submit(self, fn, *args):
+        import concurrent.futures as cf
+
+        f = cf.Future()
+        try:
+            f.set_result(fn(*args))
+        except BaseException as e:
+            f.set_exception(e)
+        return f
+
+
+def _executor(workers, scheduler):
+    import contextlib
+
+    if workers == 0 and not scheduler:
+        return contextlib.nullcontext(_InProcess())
+    return make_executor(workers, scheduler)

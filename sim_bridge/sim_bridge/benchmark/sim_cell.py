@@ -1,0 +1,188 @@
+"""The simulated cell the benchmark runs a round in: the grasp executor's arm and gripper
+adapters over a SimWorld in simulated time (`SimArm`, `SimGripper`), and `SimCell`, which
+clear_table drives."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gravgrasp_detector import hand_clearance
+from gravgrasp_detector.grasp_execution import Abort, ExecutionLimits, GraspExecutor, check_limits, plan_poses
+from robotiq_driver.gripper_client import GripperTimeout
+from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus
+
+from ..datagen.object_grasps import ObjectSource
+from ..physics.contact import SimSettings
+from ..world import STROKE_M, SceneConfig, SimWorld, WorldSettings
+from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
+
+# the simulated cell: executor adapters in simulated time
+
+
+class SimArm:
+    """grasp_execution.Arm on a SimWorld: straight-line TCP motions stepped here."""
+    def __init__(self, world):
+        self.world = world
+
+    def move_to(self, X_task_tcp, speed_mps, timeout_s):
+        return self.world.move_tcp(X_task_tcp, speed_mps, timeout_s)
+
+
+class SimGripper:
+    """The executor's gripper client (Robotiq2F85's read_state / activate /
+    move_and_wait / wait / width_m / stop) on a SimWorld's finger servo, in simulated time,
+    without the Modbus emulator: deterministic, and no wall-clock polling."""
+    STEP_S = 0.01
+
+    def __init__(self, world):
+        self.world, self.scale, self._closing = world, GripperScale(), True
+
+    def read_state(self):
+        width, state = self.world.finger_status()
+        if state == "blocked":
+            obj = ObjectStatus.CONTACT_CLOSING if self._closing else ObjectStatus.CONTACT_OPENING
+        else:
+            obj = ObjectStatus.AT_POSITION if state == "at_target" else ObjectStatus.MOVING
+        return GripperState(activated=True, go=True, activation_status=ActivationStatus.ACTIVATED,
+                            object_status=obj, position=self.scale.width_to_counts(min(width, self.scale.stroke_m)))
+
+    def activate(self, timeout_s=5.0, force=False):
+        return self.read_state()
+
+    def width_m(self, state):
+        return self.scale.counts_to_width(state.position)
+
+    def move_and_wait(self, width_m, speed_mps, force_n, timeout_s):
+        self._closing = width_m < self.world.finger_width_m()
+        self.world.command_fingers(width_m, speed_mps, force_n)
+        return self.wait(timeout_s)
+
+    def wait(self, timeout_s, requested=None):
+        t_end = self.world.time_s + timeout_s
+        while self.world.time_s < t_end:
+            self.world.advance(self.STEP_S)
+            if self.world.finger_status()[1] != "moving":
+                return self.read_state()
+        raise GripperTimeout(f"fingers still moving after {timeout_s} s of simulated time")
+
+    def stop(self):
+        self.world.hold_fingers()
+
+
+class SimCell:
+    """One scene in Drake with the executor; what `clear_table` drives."""
+    def __init__(self, scene: dict, mass_kg: float, protocol: Protocol, volume):
+
+        objects = tuple((ObjectSource(**o["source"]).load(), np.asarray(o["X_task_object"]))
+                        for o in scene["objects"])
+        settings = WorldSettings(contact=SimSettings(time_step_s=protocol.time_step_s,
+                                                     grip_force_n=protocol.grip_force_n,
+                                                     relaxation_time_s=protocol.relaxation_time_s),
+                                 max_speed_mps=protocol.free_space_speed_mps)
+        self.world = SimWorld(SceneConfig(objects=objects, object_mass_kg=mass_kg,
+                                          arrangement=scene["arrangement"]), settings)
+        self.protocol, self.volume = protocol, volume
+        # The executor's limits are the ROS node's defaults but the free-space speed;
+        # grip force per the paper.
+        self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
+                                      max_speed_mps=protocol.free_space_speed_mps)
+        self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
+                                      reachability=None, log=lambda *_: None)
+        self.home = self.world.tcp_pose()
+        self._fallen = set()
+
+    def settle(self, max_s: float = 2.0, speed_mps: float = 5e-3) -> float:
+        """Let the scene come to rest at the round's weight before the first view: the
+        layout was settled with the objects' own masses, and a heavier pile shifts (a
+        1.5 kg cylinder slid off a sphere, which rolled off the table). Returns the
+        simulated settling time."""
+        t0 = self.world.time_s
+        before = {s.name: s.X_task_object[:3, 3] for s in self.world.object_states()}
+        while self.world.time_s < t0 + max_s:
+            self.world.advance(0.1)
+            now = {s.name: s.X_task_object[:3, 3] for s in self.world.object_states() if not s.out_of_workspace}
+            speed = max((np.linalg.norm(p - before.get(n, p)) / 0.1 for n, p in now.items()), default=0.0)
+            before = now
+            if speed < speed_mps:
+                break
+        return self.world.time_s - t0
+
+    def objects_on_table(self) -> list:
+        return [s.name for s in self.world.object_states() if not s.out_of_workspace]
+
+    def remove_fallen(self) -> list:
+        """Objects that left the cube since the last call. They are not removed from the
+        world: SimWorld.remove_object on a body still falling (a sphere that rolled off
+        the table, at 14 m/s) made a later Drake step segfault; off the table they touch
+        nothing, and objects_on_table leaves them out."""
+        fallen = [s.name for s in self.world.object_states() if s.out_of_workspace and s.name not in self._fallen]
+        self._fallen.update(fallen)
+        return fallen
+
+    def observe(self):
+        """One depth image from the fixed camera -> a fresh TSDF: (grid, voxel_size_m, origin)."""
+        depth, intrinsics, T_task_camera = self.world.render_depth()
+        self.volume.reset()
+        self.volume.integrate(depth, intrinsics, T_task_camera)
+        return self.volume.grid(), self.volume.voxel_size_m, self.volume.origin.copy()
+
+    def feasible(self, grasp, tsdf) -> str:
+        """'' if the executor would start this grasp, else why not (its own checks)."""
+        poses = plan_poses(grasp.pose, self.limits.pregrasp_distance_m, self.limits.lift_height_m)
+        try:
+            check_limits(poses, self.limits)
+        except Abort as e:
+            return str(e)
+        for X in poses.values():
+            ok, message = self.world.check_reachable(X)
+            if not ok:
+                return message
+        return hand_clearance.first_collision(poses, tsdf)
+
+    def execute(self, grasp, tsdf) -> dict:
+        """Run the grasp, hold, shake, judge by ground truth, remove what was lifted,
+        open and go home. -> {outcome, reason, lifted}."""
+        p = self.protocol
+        self.executor.arm_motion(True)  # a fault disarms it; each attempt starts armed
+        result = self.executor.execute(grasp.pose, tsdf=tsdf)
+        if result.success:
+            outcome, reason = self._hold_and_shake()
+        else:
+            outcome, reason = result.code.name.lower(), result.message
+        lifted = [s.name for s in self.world.object_states()
+                  if s.in_hand and s.height_above_table_m >= LIFTED_MIN_HEIGHT_M]
+        if outcome == "success" and not lifted:
+            outcome, reason = "not_lifted", "the gripper reports a held object, but none is between the fingers above the table"
+        for name in lifted if outcome == "success" else []:
+            self.world.remove_object(name)
+        # Open where the hand is (anything still held drops back), then home.
+        self.world.command_fingers(STROKE_M, 0.1, p.grip_force_n)
+        self.world.advance(0.6)
+        if not self.world.move_tcp(self.home, self.limits.max_speed_mps, 30.0)[0]:
+            up = self.world.tcp_pose()
+            up[2, 3] = self.home[2, 3]  # straight up first if the direct path is blocked
+            self.world.move_tcp(up, self.limits.max_speed_mps, 30.0)
+            self.world.move_tcp(self.home, self.limits.max_speed_mps, 30.0)
+        return {"outcome": outcome, "reason": reason, "lifted": lifted if outcome == "success" else []}
+
+    def _hold_and_shake(self) -> tuple:
+        p = self.protocol
+        self.world.advance(p.hold_s)
+        if not self._held():
+            return "dropped_in_hold", f"the object fell out during the {p.hold_s:.1f} s hold"
+        X0 = self.world.tcp_pose()
+        for axis in (2, 0):  # vertical first: that is where the weight pulls
+            if p.shake_m <= 0:
+                break
+            for offset in (p.shake_m, -p.shake_m, 0.0):
+                X = X0.copy()
+                X[axis, 3] += offset
+                ok, message = self.world.move_tcp(X, p.shake_speed_mps, 10.0)
+                if not ok:
+                    return "shake_stopped", f"the shake motion stopped: {message}"
+        if not self._held():
+            return "dropped_in_shake", f"the object fell out during the +-{p.shake_m * 100:.0f} cm shake"
+        return "success", f"held {p.hold_s:.1f} s and through a +-{p.shake_m * 100:.0f} cm shake"
+
+    def _held(self) -> bool:
+        return any(s.in_hand and s.height_above_table_m >= LIFTED_MIN_HEIGHT_M for s in self.world.object_states())

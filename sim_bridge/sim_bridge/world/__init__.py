@@ -1,0 +1,14 @@
+"""The simulated robot cell in real time: a Drake world with gravity, the table, a scene,
+the 2F-85 on an arm stand-in, a depth camera (`SimWorld`), and the runner that steps it on
+the wall clock while the Robotiq emulator drives its fingers (`RealTimeRunner`,
+`SimFingerPlant`). No rclpy. Imports physics.
+
+Other sub-packages use the names below, not the modules behind them."""
+
+from .config import BARE_MESH_DENSITY_KG_M3, R_TOP_DOWN, CameraSettings, SceneConfig, WorldSettings, pose
+from .finger_calibration import STROKE_M
+from .runner import RealTimeRunner, SimFingerPlant
+from .sim_world import ObjectState, SimWorld
+
+__all__ = ["BARE_MESH_DENSITY_KG_M3", "R_TOP_DOWN", "STROKE_M", "CameraSettings", "ObjectState", "RealTimeRunner",
+           "SceneConfig", "SimFingerPlant", "SimWorld", "WorldSettings", "pose"]

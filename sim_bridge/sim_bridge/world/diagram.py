@@ -1,0 +1,87 @@
+"""The cell as one Drake diagram: plant (gravity, SAP, the paper's contact parameters),
+scene graph, the table, a parking shelf for removed objects, the floating 2F-85 and its
+finger servo (physics.actuators.FingerServoSystem)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pydrake.geometry import AddContactMaterial, AddRigidHydroelasticProperties, Box, ProximityProperties
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+
+from ..physics import hand_model
+from ..physics.actuators import FingerServoSystem
+from ..physics.contact import proximity_properties
+from ..physics.scenes import TABLE_FRICTION, TABLE_HEIGHT_M, VOLUME_SIZE_M
+from .config import WorldSettings
+
+PARKING_SHELF_M = (5.0, 5.0, -5.0)  # top surface of the shelf removed objects go to (task frame)
+FINGER_LINKS = frozenset(hand_model.LEFT_LINKS + hand_model.RIGHT_LINKS
+                         + ("left_silicone_pad", "right_silicone_pad"))
+DRIVER_DAMPING_NMS_PER_RAD = 0.3  # the finger servo's damping (implicit in SAP)
+
+
+@dataclass
+class WorldDiagram:
+    diagram: object
+    plant: object
+    scene_graph: object
+    hand: object
+    mount_body: object  # the hand's floating body (base_mount)
+    object_bodies: list
+    finger_servo: object
+    # Geometries by GeometryId *value* (int): pydrake hands out GeometryIds that can
+    # point into a vector the plant later grows (hand_model.Hand.geometry_links had
+    # garbage ids, so the pad boxes were not recognised), so copy the values at once.
+    hand_link_of: dict  # collision geometry id value -> hand link name
+    hand_geometries: frozenset  # collision geometry id values of the hand
+    finger_geometries: frozenset
+    hand_bodies: frozenset  # BodyIndex of every hand link
+
+
+def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
+    """Plant (gravity, SAP, the paper's contact parameters) + scene graph + the finger
+    servo. `objects`: list of (name, ObjectSpec). The table is a 1 m box whose top is the
+    plane z = TABLE_HEIGHT_M; the hand floats (its pose is set by SimWorld each step)."""
+    s = settings.contact
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(
+        time_step=s.time_step_s, discrete_contact_approximation="sap",
+        contact_model="hydroelastic_with_fallback" if s.contact_model == "hydroelastic" else "point"),
+        builder)
+    props = proximity_properties(s)
+    table_props = ProximityProperties()
+    AddContactMaterial(dissipation=s.hunt_crossley_dissipation_s_per_m,
+                       friction=CoulombFriction(TABLE_FRICTION, TABLE_FRICTION), properties=table_props)
+    table_props.AddProperty("material", "relaxation_time", s.effective_relaxation_time_s())
+    if s.contact_model == "hydroelastic":
+        AddRigidHydroelasticProperties(0.01, table_props)
+    X_table = RigidTransform([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M - 0.025])
+    plant.RegisterCollisionGeometry(plant.world_body(), X_table, Box(1.0, 1.0, 0.05), "table", table_props)
+    plant.RegisterVisualGeometry(plant.world_body(), X_table, Box(1.0, 1.0, 0.05), "table_visual",
+                                 [0.6, 0.6, 0.6, 1.0])
+    # Where removed objects are parked: a shelf far out of view (no visual geometry).
+    X_shelf = RigidTransform([PARKING_SHELF_M[0] + 10.0, PARKING_SHELF_M[1], PARKING_SHELF_M[2] - 0.5])
+    plant.RegisterCollisionGeometry(plant.world_body(), X_shelf, Box(21.0, 2.0, 1.0), "parking_shelf", table_props)
+    hand = hand_model.add_hand(plant, scene_graph, props, floating=True,
+                               pad_contact_points=s.contact_model == "point")
+    bodies = [spec.add_to_plant(plant, name=name, proximity_properties=props) for name, spec in objects]
+    plant.set_gravity_enabled(hand.model_instance, False)  # the arm carries the hand
+    for j in hand.driver_joints:
+        j.set_default_damping(DRIVER_DAMPING_NMS_PER_RAD)
+    plant.Finalize()
+    servo = builder.AddSystem(FingerServoSystem(plant, hand, s.time_step_s))
+    builder.Connect(plant.get_state_output_port(), servo.get_input_port())
+    builder.Connect(servo.get_output_port(), plant.get_actuation_input_port())
+    diagram = builder.Build()
+    link_of = {}
+    for bi in plant.GetBodyIndices(hand.model_instance):
+        body = plant.get_body(bi)
+        for g in plant.GetCollisionGeometriesForBody(body):
+            link_of[g.get_value()] = body.name()
+    finger = frozenset(g for g, link in link_of.items() if link in FINGER_LINKS)
+    return WorldDiagram(diagram, plant, scene_graph, hand, plant.GetBodyByName("base_mount", hand.model_instance),
+                        bodies, servo, link_of, frozenset(link_of), finger,
+                        frozenset(plant.GetBodyIndices(hand.model_instance)))
