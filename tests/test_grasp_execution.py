@@ -56,7 +56,7 @@ class RecordingArm:
         if self.fingers is not None:
             self.fingers.at_grasp = False  # the hand leaves where it was
         if self.gate is not None and not self.gate.wait(timeout_s):
-            return False, "timed out"
+            raise ge.ArmTimeout("timed out")
         if self.fingers is not None:  # the approach ends at the grasp pose, where the object is
             self.fingers.at_grasp = speed_mps == pytest.approx(0.05) and X[2, 3] < 0.1
         return True, "done"
@@ -370,3 +370,35 @@ def test_emergency_stop_during_the_approach_then_rearm_recovers(gripper_port):
     arm.move_to = original
     ex.arm_motion(True)
     assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS
+
+
+def test_disarmed_before_closing_says_close_the_gripper(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def disarm_at_grasp(X, speed, timeout):
+        result = original(X, speed, timeout)
+        if is_grasp(X):
+            ex.arm_motion(False)
+        return result
+
+    arm.move_to = disarm_at_grasp
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NOT_ARMED
+    assert "refusing to close the gripper" in outcome.message, outcome.message
+
+
+def test_arm_timeout_is_timeout_and_a_refusal_is_unreachable(gripper_port):
+    """The result code comes from what the arm raised or returned, not from its words."""
+    ex, arm = make_executor(gripper_port)
+
+    def times_out(X, speed, timeout):
+        raise ge.ArmTimeout("no answer within 30 s")
+
+    arm.move_to = times_out
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.TIMEOUT and "no answer within 30 s" in outcome.message
+    ex.arm_motion(True)
+    arm.move_to = lambda X, speed, timeout: (False, "motion timed out: the target is out of reach")
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE, outcome.message

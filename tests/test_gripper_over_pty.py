@@ -10,6 +10,7 @@ import serial
 from robotiq_driver.gripper_client import (
     GripperConnectionError,
     GripperFault,
+    GripperLinkError,
     GripperNotReady,
     Robotiq2F85,
 )
@@ -109,8 +110,9 @@ def test_corrupted_answers_are_retried_and_silence_is_an_error_within_the_timeou
     assert gripper.modbus.failed_attempts == 1 and server.corrupt_responses == 0
     server.respond = False
     start = time.monotonic()
-    with pytest.raises(ModbusTimeout, match=r"slave 9 .*3 attempts"):
+    with pytest.raises(GripperLinkError, match=r"slave 9 .*3 attempts") as error:
         gripper.read_state()
+    assert isinstance(error.value.__cause__, ModbusTimeout)  # the driver's own type, the line's cause
     assert time.monotonic() - start < 3 * 2 * 0.2 + 0.5  # attempts x (2 x timeout), never a hang
     server.respond = True
     gripper.read_state()
@@ -144,8 +146,9 @@ def test_port_vanishing_mid_move_then_returning(server, gripper, emulator):
     requested = gripper.move(0.0, speed_mps=0.050, force_n=40.0)  # 0.8 s to the object
     server.unplug()
     start = time.monotonic()
-    with pytest.raises(ModbusConnectionError, match="could not be reopened"):
+    with pytest.raises(GripperLinkError, match="could not be reopened") as error:
         gripper.wait(timeout_s=3.0, requested=requested)
+    assert isinstance(error.value.__cause__, ModbusConnectionError)
     assert time.monotonic() - start < 1.0
     assert emulator.state.moving  # the gripper carries on without its master
     server.replug()

@@ -12,7 +12,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
-from robotiq_driver.gripper_client import Robotiq2F85
+from robotiq_driver.gripper_client import GripperLinkError, Robotiq2F85
 from robotiq_driver.modbus_client import ModbusTimeout
 from ros_testing import call_service, spin_until
 
@@ -109,8 +109,9 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
         assert fault.success and gripper.read_state().fault == 0x0E
         silent = ros_node.create_client(SetBool, "set_gripper_silent")
         assert call_service(ros_node, silent, SetBool.Request(data=True)).success
-        with pytest.raises(ModbusTimeout):
+        with pytest.raises(GripperLinkError) as error:
             gripper.read_state()
+        assert isinstance(error.value.__cause__, ModbusTimeout)
         assert call_service(ros_node, silent, SetBool.Request(data=False)).success
         assert gripper.read_state().fault == 0x0E
 

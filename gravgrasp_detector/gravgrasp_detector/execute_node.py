@@ -28,7 +28,7 @@ from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
 from .arm_reachability import ArmReachability
-from .grasp_execution import (Abort, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome, ResultCode,
+from .grasp_execution import (Abort, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome, ResultCode,
                               pose_to_matrix)
 from .ros_interface import described, pose_msg_from_matrix, run_node
 from .tsdf_node import VOLUME_QOS
@@ -55,7 +55,7 @@ class ServiceArm:
 
     def move_to(self, X_task_tcp, speed_mps, timeout_s):
         if not self.client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
-            return False, f"arm service {self.client.srv_name} is not available (timeout)"
+            raise ArmTimeout(f"arm service {self.client.srv_name} is not available")
         request = MoveToPose.Request(speed_mps=float(speed_mps), check_only=False)
         request.target.header.frame_id = self.frame_id
         pose_msg_from_matrix(X_task_tcp, request.target.pose)
@@ -68,7 +68,7 @@ class ServiceArm:
             now = time.monotonic()
             if now >= deadline:
                 future.cancel()
-                return False, f"arm motion timed out after {timeout_s:.0f} s"
+                raise ArmTimeout(f"arm motion timed out after {timeout_s:.0f} s")
             if self.client.service_is_ready():
                 gone_since = None
             elif gone_since is None:

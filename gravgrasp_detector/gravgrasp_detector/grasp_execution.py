@@ -38,7 +38,6 @@ import numpy as np
 from robotiq_driver import grip_calibration
 from robotiq_driver.gripper_client import GripperError, GripperTimeout
 from robotiq_driver.gripper_registers import ObjectStatus
-from robotiq_driver.modbus_client import ModbusError
 
 from . import hand_clearance
 from .poses import PoseError, matrix_from_pose
@@ -100,13 +99,21 @@ class ExecutionLimits:
     empty_closed_width_m: float | None = None
 
 
+class ArmTimeout(Exception):
+    """Raised by an Arm when a motion (or the arm's interface) did not answer within the
+    motion's timeout: the result is TIMEOUT. A motion the arm refused or could not finish
+    is (False, why) instead: UNREACHABLE."""
+
+
 class ArmUnavailable(Exception):
     """Raised by an Arm when the arm itself is gone (its service vanished, the
     controller dropped the connection): where the arm stopped is unknown."""
 
 
 class Arm(Protocol):
-    def move_to(self, X_task_tcp: np.ndarray, speed_mps: float, timeout_s: float) -> tuple[bool, str]: ...
+    def move_to(self, X_task_tcp: np.ndarray, speed_mps: float, timeout_s: float) -> tuple[bool, str]:
+        """(True, message) when the TCP arrived; (False, why) when the arm refused or could
+        not finish the motion; raises ArmTimeout or ArmUnavailable."""
 
 
 def pose_to_matrix(position, quaternion_xyzw) -> np.ndarray:
@@ -173,7 +180,7 @@ class GraspExecutor:
         if self.gripper is not None:
             try:
                 self.gripper.stop()
-            except (GripperError, ModbusError):
+            except GripperError:
                 pass
 
     def execute(self, X_grasp: np.ndarray, tsdf=None, pregrasp_distance_m: float = 0.0) -> Outcome:
@@ -256,7 +263,7 @@ class GraspExecutor:
                 # Also clears a latched major fault: we only get here armed, i.e. after a
                 # person re-armed following the fault.
                 self.gripper.activate(timeout_s=self.limits.gripper_timeout_s)
-            except (GripperError, ModbusError, OSError) as err:
+            except (GripperError, OSError) as err:
                 self._drop_gripper()
                 raise Abort(ResultCode.GRIPPER_FAULT, f"gripper unavailable: {err}") from None
         return self.gripper
@@ -275,7 +282,7 @@ class GraspExecutor:
                 self._require_armed("calibrate the gripper (it closes once on nothing)")
                 self.calibration = grip_calibration.calibrate_empty_closed(
                     self.gripper, lim.grip_speed_mps, force, lim.gripper_timeout_s)
-        except (GripperError, ModbusError) as err:
+        except GripperError as err:
             self._drop_gripper()
             if self.estopped.is_set():  # estop() stopped the fingers mid-calibration
                 raise Abort(ResultCode.NOT_ARMED, "emergency stop during the gripper calibration: fingers halted; "
@@ -293,13 +300,13 @@ class GraspExecutor:
         if gripper is not None and hasattr(gripper, "close"):
             try:
                 gripper.close()
-            except (GripperError, ModbusError, OSError):
+            except (GripperError, OSError):
                 pass
 
     def _read(self, gripper):
         try:
             return gripper.read_state()
-        except (GripperError, ModbusError) as err:
+        except GripperError as err:
             self._drop_gripper()
             raise Abort(ResultCode.GRIPPER_FAULT, f"gripper stopped answering: {err}") from None
 
@@ -315,12 +322,14 @@ class GraspExecutor:
             return gripper.wait(timeout_s=self.limits.gripper_timeout_s)
         except GripperTimeout as err:
             raise Abort(ResultCode.TIMEOUT, f"fingers still moving after the lift: {err}") from None
-        except (GripperError, ModbusError) as err:
+        except GripperError as err:
             self._drop_gripper()
             raise Abort(ResultCode.GRIPPER_FAULT, f"gripper failed after the lift: {err}") from None
 
+    GRIP_VERBS = {"opening": "open", "closing": "close"}
+
     def _grip(self, gripper, width_m, what):
-        self._require_armed(what.rstrip("ing") + "e the gripper")
+        self._require_armed(f"{self.GRIP_VERBS[what]} the gripper")
         force = min(self.limits.grip_force_n, self.limits.max_force_n)
         try:
             return gripper.move_and_wait(width_m, self.limits.grip_speed_mps, force,
@@ -330,7 +339,7 @@ class GraspExecutor:
                 raise Abort(ResultCode.NOT_ARMED, f"emergency stop during gripper {what}: fingers halted; "
                                                   "release it and arm again (service ~/arm)") from None
             raise Abort(ResultCode.TIMEOUT, f"gripper {what} did not finish: {err}") from None
-        except (GripperError, ModbusError) as err:
+        except GripperError as err:
             self._drop_gripper()  # reconnect (and re-activate) on the next attempt
             raise Abort(ResultCode.GRIPPER_FAULT, f"gripper {what} failed: {err}") from None
 
@@ -338,11 +347,12 @@ class GraspExecutor:
         self._require_armed(f"move to the {name} pose")
         try:
             ok, message = self.arm.move_to(X, min(speed_mps, self.limits.max_speed_mps), self.limits.arm_timeout_s)
+        except ArmTimeout as err:
+            raise Abort(ResultCode.TIMEOUT, f"arm could not reach the {name} pose: {err}") from None
         except ArmUnavailable as err:
             raise Abort(ResultCode.ARM_FAULT, f"arm lost during the move to the {name} pose: {err}; "
                                               "check the arm and its driver, then arm again") from None
         if self.estopped.is_set():
             raise Abort(ResultCode.NOT_ARMED, f"emergency stop during the move to {name}")
         if not ok:
-            code = ResultCode.TIMEOUT if "timed out" in message or "timeout" in message else ResultCode.UNREACHABLE
-            raise Abort(code, f"arm could not reach the {name} pose: {message}")
+            raise Abort(ResultCode.UNREACHABLE, f"arm could not reach the {name} pose: {message}")

@@ -21,7 +21,6 @@ import sys
 from . import grip_calibration
 from .gripper_client import GripperError, Robotiq2F85, describe_motion_end
 from .gripper_registers import BAUDRATE, SLAVE_ID, ActivationStatus, ObjectStatus
-from .modbus_client import ModbusError
 
 DEFAULT_SPEED_MPS = 0.1
 DEFAULT_FORCE_N = 40.0
@@ -138,7 +137,7 @@ def main(argv=None) -> None:
             parser.error(f"--slave-id {value} is outside 1..247")
     try:
         print(run(args), flush=True)
-    except (GripperError, ModbusError, ValueError) as error:
+    except (GripperError, ValueError) as error:
         print(f"gripper_cli: error: {error}", file=sys.stderr, flush=True)
         sys.exit(1)
     except KeyboardInterrupt:

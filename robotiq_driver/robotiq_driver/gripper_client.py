@@ -9,6 +9,7 @@ reopened by path on the next attempt.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -25,17 +26,23 @@ from .gripper_registers import (
     ObjectStatus,
     fault_text,
 )
-from .modbus_client import ModbusConnectionError, ModbusRtuClient
+from .modbus_client import ModbusConnectionError, ModbusError, ModbusRtuClient
 
 FAULT_ACTION_DELAYED = 0x05
 
 
 class GripperError(Exception):
-    """Base class of the driver's gripper-level errors (Modbus errors are ModbusError)."""
+    """Base class of every error `Robotiq2F85` raises (besides ValueError for bad arguments)."""
 
 
 class GripperConnectionError(GripperError):
     """The serial port could not be opened."""
+
+
+class GripperLinkError(GripperError):
+    """The Modbus RTU line failed: no valid answer after the retries, an exception
+    response, or a port that could not be reopened. The `modbus_client.ModbusError`
+    (ModbusTimeout, ModbusExceptionResponse, ModbusConnectionError) is its __cause__."""
 
 
 class GripperNotReady(GripperError):
@@ -60,6 +67,15 @@ def describe_motion_end(state: GripperState, width_m: float) -> str:
     if state.object_status == ObjectStatus.CONTACT_OPENING:
         return f"stopped on an object while opening, at {width_mm:.1f} mm"
     return f"reached {width_mm:.1f} mm, no object"
+
+
+@contextlib.contextmanager
+def _link_errors():
+    """The line's ModbusError as the driver's own GripperLinkError (same message)."""
+    try:
+        yield
+    except ModbusError as error:
+        raise GripperLinkError(str(error)) from error
 
 
 class Robotiq2F85:
@@ -109,7 +125,7 @@ class Robotiq2F85:
     # -- registers ---------------------------------------------------------------
 
     def read_state(self) -> GripperState:
-        with self._lock:
+        with self._lock, _link_errors():
             if self.status_function == 0x04:
                 registers = self.modbus.read_input_registers(self.slave_id, STATUS_ADDRESS, REGISTER_COUNT)
             else:
@@ -117,7 +133,7 @@ class Robotiq2F85:
         return GripperState.from_registers(registers)
 
     def write_command(self, command: GripperCommand) -> None:
-        with self._lock:
+        with self._lock, _link_errors():
             self.modbus.write_registers(self.slave_id, COMMAND_ADDRESS, command.to_registers())
             self._last_command = command
 

@@ -33,11 +33,10 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from .gripper_client import GripperError, Robotiq2F85, describe_motion_end
+from .gripper_client import GripperError, GripperLinkError, Robotiq2F85, describe_motion_end
 from .gripper_registers import MAJOR_FAULTS, GripperCommand, GripperScale, GripperState
-from .modbus_client import ModbusError
 
-COMM_ERRORS = (ModbusError, serial.SerialException, OSError)
+COMM_ERRORS = (GripperLinkError, serial.SerialException, OSError)  # the link is gone: reconnect
 
 
 def _float_param(description, low, high):
@@ -241,11 +240,11 @@ class GripperNode(Node):
             state = gripper.wait(self.motion_timeout_s, requested) if wait else gripper.read_state()
         except ValueError as error:
             return False, f"rejected: {error}", self._last_state
-        except GripperError as error:
-            return False, str(error), self._last_state
         except COMM_ERRORS as error:
             self._disconnect(error)
             return False, f"communication with the gripper failed: {error}", None
+        except GripperError as error:
+            return False, str(error), self._last_state
         if not wait:
             return True, f"moving to {position_m * 1e3:.1f} mm", state
         return True, describe_motion_end(state, self.scale.counts_to_width(state.position)), state
@@ -259,11 +258,11 @@ class GripperNode(Node):
             faulted = gripper.read_state().fault != 0
             gripper.activate(self.activation_timeout_s, force=faulted)
             response.success, response.message = True, "activated"
-        except GripperError as error:
-            response.message = str(error)
         except COMM_ERRORS as error:
             self._disconnect(error)
             response.message = f"communication with the gripper failed: {error}"
+        except GripperError as error:
+            response.message = str(error)
         return response
 
     def _stop(self, request, response: Trigger.Response) -> Trigger.Response:
