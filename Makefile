@@ -47,7 +47,7 @@ test: setup
 demo: setup
 	@$(ROS) if [ -f models/gravgrasp.pt ]; then ros2 run sim_bridge demo --objects 3 --out out/demo; \
 	  else echo "models/gravgrasp.pt not trained yet: running the stack without the network"; \
-	  python -m pytest -v -p no:randomly tests/test_interfaces.py tests/test_execute_in_sim.py; fi
+	  python -m pytest -v -p no:randomly tests/system/test_interfaces.py tests/system/test_execute_in_sim.py; fi
 
 lock:
 	@rm -rf .venv-lock && python3.11 -m venv .venv-lock && \
@@ -64,7 +64,7 @@ bench-gripper: setup
 	@$(ROS) ros2 run robotiq_driver bench_gripper
 
 # Stability: 10 min of 30 Hz depth through tsdf + detect with /execute_grasp requests
-# against the sim bridge; last line soak_ok=1 (CI runs 60 s: tests/test_soak.py).
+# against the sim bridge; last line soak_ok=1 (CI runs 60 s: tests/system/test_soak.py).
 .PHONY: soak
 SOAK_S ?= 600
 soak: setup

@@ -1,15 +1,34 @@
-"""Shared fixtures. Tests run from a shell that sourced ros_ws/env.sh (make test does)."""
+"""Shared fixtures. Tests run from a shell that sourced ros_ws/env.sh (make test does).
+
+Layout: tests/<package>/ for each package's tests, tests/system/ for the cross-package
+end-to-end tests, tests/support/ for helpers (importable by name from any test),
+tests/data/ for recorded data. Markers (pytest.ini): `ros` is added here to every test
+that starts ROS nodes or a DDS participant (the ros_node / ros_process fixtures);
+modules that run Drake simulations mark themselves `drake`, tests that train a network
+`slow`. The quick subset:
+    python -m pytest -m "not ros and not drake and not slow and not soak"
+"""
 import os
+import pathlib
+import sys
 
 import pytest
 
-import ros_testing
+sys.path.insert(0, str(pathlib.Path(__file__).with_name("support")))
+
+import ros_testing  # noqa: E402  (from tests/support, put on the path above)
 
 # One ROS domain for this whole pytest run, claimed before anything starts rclpy, so
 # both this process and the nodes it spawns use it and other runs never cross-talk.
 _DOMAIN = ros_testing.claim_domain_id()
 os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if {"ros_node", "ros_process"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.ros)
 
 
 def pytest_report_header(config):

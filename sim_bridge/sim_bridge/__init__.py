@@ -1,5 +1,5 @@
 """Drake simulation of the Robotiq 2F-85, in sub-packages by role (imports point down only;
-tests/test_sim_bridge_layering.py checks it):
+tests/sim_bridge/test_layering.py checks it):
 
     ros        the sim bridge node, the demo, the soak run        -> benchmark, world, physics
     benchmark  clutter removal, qualitative check (paper Sec. V)  -> world, datagen, physics

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 # --- key dimensions: one source for every package (robotiq_driver.hand_geometry), checked
-# against this model by tests/test_sim_hand.py.
+# against this model by tests/sim_bridge/test_hand_model.py.
 from robotiq_driver.hand_geometry import (  # noqa: E402,F401  (re-exported)
     BODY_HALF_EXTENTS_M, FINGER_HALF_WIDTH_X_M, FINGER_LENGTH_M, FLANGE_TO_PALM_M, FLANGE_TO_TCP_M,
     MAX_STROKE_M, PAD_LENGTH_M, PAD_WIDTH_M, PALM_TO_TCP_M)

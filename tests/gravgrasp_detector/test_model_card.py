@@ -1,0 +1,96 @@
+"""Model cards (gravgrasp_detector/model_card.py) from a tiny real training run.
+
+Six synthetic scenes (test_training.make_scene: a fused TSDF of a box with top-down
+labels) laid out as `datagen scenes` does (DATA/scenes/*.npz + manifest.json naming the
+grasp tables), three small grasp tables, two epochs of `training.train`.
+"""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from gravgrasp_detector import model_card, model_file, training
+from test_training import make_scene
+
+pytestmark = pytest.mark.slow  # the fixture trains a model
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("card")
+    tables = root / "tables" / "objects"
+    tables.mkdir(parents=True)
+    for n in range(3):  # 3 held grasps per object: power, precision, power; one missed
+        np.savez(tables / f"obj{n}.npz", mode_names=np.array(["power", "precision", "none"]),
+                 mode=np.array([0, 1, 0, 2], np.uint8), grasped=np.array([1, 1, 1, 0], bool),
+                 scores_n=np.full((4, 6), 10.0), wall_time_s=np.ones(4))
+    scenes = root / "data" / "scenes"
+    scenes.mkdir(parents=True)
+    rng = np.random.default_rng(7)
+    for n in range(6):
+        make_scene(scenes / f"{n:06d}.npz", rng)
+        z = dict(np.load(scenes / f"{n:06d}.npz"))
+        np.savez_compressed(scenes / f"{n:06d}.npz", **z, arrangement=np.asarray("packed"))  # datagen writes it
+    (scenes / "manifest.json").write_text(json.dumps({"objects_dir": str(tables)}))
+    out = root / "run"
+    training.train(training.TrainConfig(data=str(root / "data"), out=str(out), epochs=2, threads=1), progress=False)
+    models = root / "models"
+    models.mkdir()
+    shutil.copy(out / "model.pt", models / "gravgrasp.pt")
+    return root, out, models / "gravgrasp.pt"
+
+
+def _card(run, *extra):
+    root, out, model = run
+    argv = [str(out), "--model", str(model), "--qualitative", str(root / "qualitative"), *extra]
+    assert model_card.main(argv) == 0
+    return (model.parent / "gravgrasp.md").read_text()
+
+
+def test_card_has_metrics_data_command_and_machine(run):
+    root, out, model = run
+    history = json.loads((out / "history.json").read_text())
+    card = _card(run)
+    rows = {line.split("|")[1].strip(): line for line in card.splitlines() if line.startswith("| ")}
+    final = history[-1]
+    assert f"| {final['val_score_mae_n']:.3g} (epoch 2) |" in rows["score MAE [N] (valid voxels)"]
+    assert f"| {final['val_rotation_error_deg']:.3g} (epoch 2) |" in rows["rotation error [deg] (valid voxels, 180° twin)"]
+    best_auroc = max(history, key=lambda h: h["val_validness_auroc"])
+    assert rows["validness AUROC"].endswith(f"| {best_auroc['val_validness_auroc']:.3g} ({best_auroc['epoch']}) |")
+    # data: from data_report over the manifest's tables (3 objects, 9 held, 6 power) and the scene files
+    assert "3 objects, 9 held grasps, power fraction 0.667" in card
+    assert "scenes: 6 (packed 6)" in card
+    recorded = model_file.load_model(model)[1]["training_data"]
+    assert f"command (as `train` recorded it): `{recorded['command']}`" in card
+    assert recorded["machine"]["cpu"] in card and "torch threads 1" in card
+    assert f"`{model_file.file_sha256(model)}`" in card
+    assert "_Not run yet: no PNGs" in card and model_card.HUMAN_PLACEHOLDER in card
+
+
+def test_qualitative_pngs_are_linked_and_human_notes_survive(run):
+    root, out, model = run
+    qdir = root / "qualitative"
+    qdir.mkdir(exist_ok=True)
+    for name in model_card.SLICE_PNGS[:3]:
+        (qdir / name).write_bytes(b"png")
+    card = _card(run)
+    assert "(../qualitative/slice_z080mm.png)" in card  # relative to models/
+    assert "depth.png) (missing)" in card
+    notes = "Score peaks around the cylinder at z = 0.08 m; the box's 100 mm side is rejected."
+    path = model.parent / "gravgrasp.md"
+    path.write_text(card.replace(model_card.HUMAN_PLACEHOLDER, notes))
+    again = _card(run)
+    assert notes in again and model_card.HUMAN_PLACEHOLDER not in again
+
+
+def test_bad_inputs_are_one_line(run, tmp_path, capsys):
+    root, out, model = run
+    other = tmp_path / "other.pt"
+    other.write_bytes(model.read_bytes() + b"\0")
+    assert model_card.main([str(out), "--model", str(other)]) == 2
+    assert model_card.main([str(tmp_path), "--model", str(model)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2
+    assert "is not the model of" in err[0]
+    assert "history.json is missing" in err[1]

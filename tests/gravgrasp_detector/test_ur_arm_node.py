@@ -1,0 +1,162 @@
+"""The ur_arm node over real DDS: move_to_pose and stop_motion as the sim bridge serves
+them, served here by the node class with a recording stand-in of ur_rtde injected
+(tests/support/fake_rtde.py); the executor (a real process) driving it through a grasp; and
+the installed executable with the real ur_rtde against an address where no robot answers."""
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped
+from gravgrasp_msgs.msg import Grasp
+from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
+from std_srvs.srv import SetBool, Trigger
+
+from fake_rtde import FakeURController
+from gravgrasp_detector.ur_arm_node import URArmNode
+from ros_testing import wait_until
+
+
+def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
+    request = MoveToPose.Request(speed_mps=float(speed), check_only=check_only)
+    request.target.header.frame_id = frame
+    p, q = request.target.pose.position, request.target.pose.orientation
+    p.x, p.y, p.z = float(x), float(y), float(z)
+    q.x, q.w = 1.0, 0.0  # TCP z pointing down
+    return request
+
+
+def call(client, request, timeout_s=30.0):
+    assert client.wait_for_service(timeout_sec=15), f"{client.srv_name} not available"
+    done = threading.Event()
+    future = client.call_async(request)
+    future.add_done_callback(lambda _: done.set())
+    assert done.wait(timeout_s), f"{client.srv_name} did not answer in {timeout_s} s"
+    return future.result()
+
+
+@pytest.fixture
+def served(ros_node):
+    """URArmNode with the stand-in controller, spun with the test's client node."""
+    ur = FakeURController()
+    ur.time_scale = 0.3
+    arm_node = URArmNode(connect=ur.connect, parameter_overrides=[
+        Parameter("call_timeout_s", value=2.0), Parameter("motion_timeout_margin_s", value=2.0),
+        Parameter("reconnect_period_s", value=0.2), Parameter("tcp_in_flange", value=[0.0, 0.0, 0.1558, 0.0, 0.0, 0.0])])
+    executor = MultiThreadedExecutor(num_threads=6)
+    executor.add_node(arm_node)
+    executor.add_node(ros_node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    assert wait_until(lambda: arm_node.arm.connected, 10), "the node did not connect to the stand-in"
+    yield {"ur": ur, "node": ros_node, "arm_node": arm_node}
+    executor.shutdown()
+    arm_node.close()
+    arm_node.destroy_node()
+
+
+def test_move_stop_and_refusals_over_dds(served):
+    ur, node = served["ur"], served["node"]
+    move = node.create_client(MoveToPose, "move_to_pose")
+    stop = node.create_client(Trigger, "stop_motion")
+    ok = call(move, move_request(0.15, 0.15, 0.20, speed=0.25))
+    assert ok.reachable and ok.success, ok.message
+    assert len(ok.joint_positions) == 6
+    pose = ur.called("moveL")[-1][0]
+    # Default base (0.15, -0.45, 0), yaw 0: the task point is 0.6 m along the base's y.
+    np.testing.assert_allclose(pose[:3], [0.0, 0.6, 0.2], atol=1e-9)
+
+    out = call(move, move_request(0.15, 0.15, 0.90))
+    assert not out.reachable and "outside the protective box" in out.message
+    frame = call(move, move_request(0.15, 0.15, 0.2, frame="base_link"))
+    assert not frame.reachable and frame.message.startswith("rejected: target frame 'base_link'")
+    check = call(move, move_request(0.15, 0.10, 0.20, check_only=True))
+    assert check.reachable and not check.success
+    moves = len(ur.called("moveL"))
+    assert moves == 1, "refusals and check_only must not move"
+    # flange_pose: the flange 0.1558 m above the TCP that points down (calibrate_camera's input).
+    flange = {}
+    node.create_subscription(PoseStamped, "flange_pose", lambda m: flange.setdefault("m", m), 10)
+    assert wait_until(lambda: "m" in flange, 10), "no flange_pose"
+    p = flange["m"].pose.position
+    assert flange["m"].header.frame_id == "task"
+    np.testing.assert_allclose([p.x, p.y, p.z], [0.15, 0.15, 0.20 + 0.1558], atol=1e-6)
+
+    assert call(stop, Trigger.Request()).message == "no motion was running"
+    results = {}
+    worker = threading.Thread(target=lambda: results.setdefault("r", call(move, move_request(0.15, 0.15, 0.45, speed=0.02))))
+    worker.start()
+    assert wait_until(lambda: len(ur.called("moveL")) == 2, 10)
+    stopped = call(stop, Trigger.Request())
+    worker.join(10)
+    assert stopped.success and stopped.message == "motion stopped"
+    assert not results["r"].success and "stopped by stop_motion" in results["r"].message, results["r"].message
+    assert ur.called("stopL")
+
+
+def test_lost_link_is_answered_then_the_node_reconnects(served):
+    ur, node = served["ur"], served["node"]
+    move = node.create_client(MoveToPose, "move_to_pose")
+    ur.lose_link_after_s = 0.05
+    lost = call(move, move_request(0.15, 0.15, 0.40, speed=0.05))
+    assert not lost.success and lost.message.startswith("arm connection lost"), lost.message
+    ur.lose_link_after_s = None
+    assert wait_until(lambda: ur.connects >= 2 and served["arm_node"].arm.connected, 10), "no reconnect"
+    again = call(move, move_request(0.15, 0.15, 0.30, speed=0.25))
+    assert again.success, again.message
+
+
+def top_down_grasp(x=0.15, y=0.15, z=0.08) -> Grasp:
+    g = Grasp()
+    g.pose.position.x, g.pose.position.y, g.pose.position.z = x, y, z
+    g.pose.orientation.x, g.pose.orientation.w = 1.0, 0.0
+    g.gravity_rejection_score, g.validness = 20.0, 0.9
+    return g
+
+
+def test_the_executor_grasps_through_the_ur_adapter(served, ros_process, tmp_path):
+    """execute (a process) -> move_to_pose -> ur_arm -> the controller stand-in; the
+    gripper is the 2F-85 emulator on a pty holding a 5 cm object."""
+    ur, node = served["ur"], served["node"]
+    link = str(tmp_path / "ttyGripper")
+    ros_process("robotiq_driver", "gripper_emulator",
+                args=["--link", link, "--object-width-m", "0.05", "--activation-time-s", "0.1"])
+    # No camera here (max_tsdf_age_s 0), and the emulator always holds its 5 cm object, so
+    # the executor gets a stored empty-closed calibration instead of measuring one.
+    execute = ros_process("gravgrasp_detector", "execute",
+                          params={"gripper_port": link, "check_ik": True, "tcp_offset_m": 0.1558,
+                                  "max_tsdf_age_s": 0.0, "gripper_empty_closed_m": 0.0})
+    execute.wait_for_output("execute ready", timeout_s=60)
+    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    request = ExecuteGrasp.Request()
+    request.header.frame_id, request.grasp = "task", top_down_grasp()
+    result = call(node.create_client(ExecuteGrasp, "execute_grasp"), request, timeout_s=120)
+    assert result.result_code == ExecuteGrasp.Response.SUCCESS, result.message
+    targets = [args[0] for args in ur.called("moveL")]
+    heights = [round(p[2], 3) for p in targets]
+    print(f"moveL targets (base frame): {[np.round(p[:3], 3).tolist() for p in targets]}")
+    assert heights[:3] == [0.13, 0.08, 0.23], heights  # pre-grasp 5 cm above, grasp, lift 15 cm
+    assert all(np.allclose(p[:2], [0.0, 0.6]) for p in targets[:3])
+
+
+def test_installed_executable_without_a_robot(ros_process, ros_node):
+    """The real ur_rtde against loopback, where no controller listens: the node says so,
+    keeps serving, and answers requests with the reason."""
+    empty = ros_process("gravgrasp_detector", "ur_arm")
+    assert empty.wait_exit(30) == 2
+    assert "robot_ip is empty" in empty.output()
+
+    node = ros_process("gravgrasp_detector", "ur_arm",
+                       params={"robot_ip": "127.0.0.1", "reconnect_period_s": 1.0})
+    node.wait_for_output("ur_arm ready", timeout_s=30)
+    line = node.wait_for_output(r"cannot reach the UR controller at 127\.0\.0\.1: .*", timeout_s=30).group(0)
+    print(line)
+    assert "Could not connect" in line and "Remote Control" in line
+    move = ros_node.create_client(MoveToPose, "move_to_pose")
+    from ros_testing import call_service
+    answer = call_service(ros_node, move, move_request(0.15, 0.15, 0.2), timeout_s=30)
+    assert not answer.success and answer.message.startswith("arm connection lost"), answer.message
+    assert node.alive()

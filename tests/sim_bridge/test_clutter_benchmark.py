@@ -1,0 +1,252 @@
+"""The clutter-removal benchmark (sim_bridge/benchmark/, issue 8): the round's
+rules on a scripted cell, the statistics, the object pool, missing models, and one
+small run in Drake (outputs, determinism, resume)."""
+import json
+import math
+import types
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from gravgrasp_detector import model_file, networks, tsdf
+from sim_bridge.benchmark import clutter_benchmark as cb
+from sim_bridge.benchmark import protocol, report, sim_cell
+from sim_bridge.benchmark import rounds as bench_rounds
+
+pytestmark = pytest.mark.drake
+
+
+# -- the round's rules on a scripted cell ---------------------------------------------
+
+def grasp(score):
+    return types.SimpleNamespace(pose=np.eye(4), score_n=score, validness=0.9)
+
+
+class ScriptedCell:
+    """objects_on_table shrinks by one per success; outcomes come from a script."""
+
+    def __init__(self, n_objects, outcomes, infeasible_ranks=()):
+        self.left = [f"o{i}" for i in range(n_objects)]
+        self.outcomes = list(outcomes)
+        self.infeasible_ranks = set(infeasible_ranks)
+        self.executed = []
+
+    def objects_on_table(self):
+        return list(self.left)
+
+    def observe(self):
+        return (np.zeros((4, 4, 4)), 0.0075, np.zeros(3))
+
+    def feasible(self, g, tsdf):
+        return "out of reach" if g.score_n in self.infeasible_ranks else ""
+
+    def execute(self, g, tsdf):
+        self.executed.append(g.score_n)
+        ok = self.outcomes.pop(0)
+        lifted = [self.left.pop(0)] if ok else []
+        return {"outcome": "success" if ok else "dropped", "reason": "scripted", "lifted": lifted}
+
+    def remove_fallen(self):
+        return []
+
+
+def ranked(*scores):
+    return lambda tsdf: [grasp(s) for s in scores]
+
+
+def test_round_ends_when_the_table_is_clear():
+    cell = ScriptedCell(3, [True, True, True])
+    r = protocol.clear_table(cell, ranked(3.0), 3)
+    assert r["end"] == "table_clear" and len(r["attempts"]) == 3
+    assert all(a["success"] for a in r["attempts"])
+
+
+def test_round_ends_after_two_consecutive_failures_only():
+    cell = ScriptedCell(5, [False, True, False, False, True])
+    r = protocol.clear_table(cell, ranked(3.0), 5)
+    assert r["end"] == "consecutive_failures"
+    assert [a["success"] for a in r["attempts"]] == [False, True, False, False]  # one failure did not end it
+
+
+def test_round_ends_when_nothing_is_detected_or_feasible():
+    r = protocol.clear_table(ScriptedCell(2, []), ranked(), 2)
+    assert r["end"] == "no_grasp_detected" and r["attempts"] == []
+    r = protocol.clear_table(ScriptedCell(2, [], infeasible_ranks={5.0, 4.0}), ranked(5.0, 4.0), 2)
+    assert r["end"] == "no_feasible_grasp" and r["attempts"] == []
+
+
+def test_the_best_feasible_grasp_is_executed():
+    cell = ScriptedCell(1, [True], infeasible_ranks={5.0})
+    r = protocol.clear_table(cell, ranked(5.0, 4.0, 3.0), 1)
+    assert cell.executed == [4.0]
+    assert r["attempts"][0]["rank"] == 1 and r["attempts"][0]["skipped_infeasible"] == 1
+
+
+def test_attempt_limit_bounds_a_round():
+    class NeverClears(ScriptedCell):
+        def execute(self, g, tsdf):  # alternates, never 2 failures in a row, object stays
+            self.executed.append(g.score_n)
+            ok = len(self.executed) % 2 == 0
+            return {"outcome": "success" if ok else "dropped", "reason": "scripted", "lifted": []}
+
+    r = protocol.clear_table(NeverClears(1, []), ranked(1.0), 1, attempts_per_object=3)
+    assert r["end"] == "attempt_limit" and len(r["attempts"]) == 3
+
+
+# -- statistics -----------------------------------------------------------------------
+
+def test_wilson_interval():
+    lo, hi = report.wilson_interval(5, 10)
+    assert lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
+    lo, hi = report.wilson_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-4)
+    lo, hi = report.wilson_interval(10, 10)
+    assert hi == 1.0 and lo == pytest.approx(0.7225, abs=1e-4)
+    assert all(math.isnan(v) for v in report.wilson_interval(0, 0))
+
+
+# -- objects and models ---------------------------------------------------------------
+
+def test_oversized_objects_are_excluded_and_reported(tmp_path):
+    trimesh.creation.box((0.10, 0.12, 0.10)).export(tmp_path / "big_cube.obj")       # 100 mm at its narrowest
+    trimesh.creation.box((0.09, 0.20, 0.03)).export(tmp_path / "flat_board.obj")     # 30 mm thick: fits
+    for i in range(5):
+        trimesh.creation.cylinder(radius=0.02 + 0.002 * i, height=0.1).export(tmp_path / f"can{i}.obj")
+    usable, excluded = protocol.object_pool(str(tmp_path))
+    assert [e["name"] for e in excluded] == ["big_cube"]
+    assert excluded[0]["min_width_mm"] == pytest.approx(100.0, abs=0.5)
+    assert sorted(s.name for s in usable) == ["can0", "can1", "can2", "can3", "can4", "flat_board"]
+
+
+def test_bad_mesh_dir_is_one_clear_error(tmp_path, capsys):
+    code = cb.main(["--meshes", str(tmp_path / "nope"), "--model", f"x={tmp_path}/m.pt", "--methods", "",
+                    "--out", str(tmp_path / "o")])
+    assert code == 2  # the model is missing too: that message comes first
+    assert "no method has a model file" in capsys.readouterr().err
+    save_test_model(tmp_path / "m.pt")
+    code = cb.main(["--meshes", str(tmp_path / "nope"), "--model", f"x={tmp_path}/m.pt", "--methods", "",
+                    "--out", str(tmp_path / "o"), "--workers", "0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "does not exist" in err and "Traceback" not in err
+
+
+def test_missing_model_is_skipped_with_a_note(tmp_path):
+    notes = []
+    save_test_model(tmp_path / "gravgrasp.pt")
+    found = bench_rounds.resolve_methods(["ours", "binary"], tmp_path, note=notes.append)
+    assert list(found) == ["ours"]
+    assert notes == [f"benchmark: skipping binary: model file {tmp_path / 'gravgrasp_binary.pt'} not found"]
+    with pytest.raises(ValueError, match="unknown method"):
+        bench_rounds.resolve_methods(["oursx"], tmp_path)
+
+
+def save_test_model(path, validness_bias=5.0, target="gravity-score"):
+    """Random init, made to propose top-down grasps (closing along task y) at every
+    near-surface voxel, so a round executes real attempts."""
+    torch.manual_seed(0)
+    m = networks.GraspNet(score_scale_n=10.0)
+    with torch.no_grad():
+        m.head_score_validness.bias[1] = validness_bias
+        m.head_rotation.weight.mul_(1e-3)
+        m.head_rotation.bias.copy_(torch.tensor([1.0, 0, 0, 0, 0, -1.0]))
+    model_file.save_model(path, m, tsdf.TSDFVolume(resolution=40), training_data={"target": target})
+    return path
+
+
+def test_binary_model_ranks_by_validness(tmp_path):
+    model, meta = model_file.load_model(save_test_model(tmp_path / "b.pt", validness_bias=0.0, target="binary"))
+    assert model_file.training_target(meta) == "binary" and model_file.ranking(meta) == "validness"
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3
+    grid[10:30, 10:30, 12] = 0.5
+    # a min-score threshold in N must not apply to probabilities
+    detect = bench_rounds.make_detector(model, meta, protocol.Protocol(validness_threshold=0.0, min_score_n=1e6))
+    grasps = detect((grid, 0.0075, np.zeros(3)))
+    assert grasps and all(0.0 <= g.score_n <= 1.0 for g in grasps)
+    assert [g.score_n for g in grasps] == sorted((g.score_n for g in grasps), reverse=True)
+    assert all(g.score_n == pytest.approx(g.validness) for g in grasps)
+
+
+# -- a small run in Drake ---------------------------------------------------------------
+
+def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
+    model = save_test_model(tmp_path / "ours.pt")
+    nothing = save_test_model(tmp_path / "blind.pt", validness_bias=-20.0)
+    out = tmp_path / "out"
+    argv = ["--out", str(out), "--methods", "ours,binary", "--models-dir", str(tmp_path / "none"),
+            "--model", f"ours={model}", "--model", f"blind={nothing}", "--scenes", "1", "--weights", "0.3",
+            "--time-step-s", "0.002", "--workers", "0", "--no-progress"]
+    assert cb.main(argv) == 0
+    text = capsys.readouterr().out.strip().splitlines()
+    assert any("skipping binary" in line for line in text)
+    assert text[-2].startswith("SR_ours_0.3=") and text[-1].startswith("SR_blind_0.3=nan")
+
+    attempts = json.loads((out / "attempts.json").read_text())
+    rounds = {r["method"]: r for r in attempts["rounds"]}
+    assert rounds["blind"]["end"] == "no_grasp_detected" and rounds["blind"]["attempts"] == 0
+    ours = rounds["ours"]
+    assert ours["end"] in ("table_clear", "consecutive_failures", "no_feasible_grasp", "attempt_limit")
+    assert ours["attempts"] >= 1 and ours["n_objects"] + len(ours["left_before_start"]) == protocol.OBJECTS_PER_SCENE
+    for a in attempts["attempts"]:
+        assert set(a) >= {"method", "mass_kg", "scene_id", "object", "pose", "score", "score_unit", "outcome",
+                          "success", "reason"}
+        assert np.asarray(a["pose"]).shape == (4, 4) and a["score_unit"] == "N" and a["mass_kg"] == 0.3
+    results = json.loads((out / "results.json").read_text())
+    row = next(r for r in results if r["method"] == "ours")
+    assert row["SR"] == pytest.approx(row["successes"] / row["attempts"])
+    md = (out / "results.md").read_text()
+    assert "| ours | 0.3 | 1/1 |" in md
+    # Every attempt appears once in the outcome table.
+    header = next(line for line in md.splitlines() if line.startswith("| method | weight [kg] | success"))
+    outcome_row = [line for line in md.splitlines() if line.startswith("| ours | 0.3 |")][-1]
+    counts = dict(zip(header.strip("| ").split(" | ")[2:], map(int, outcome_row.strip("| ").split(" | ")[2:])))
+    assert sum(counts.values()) == ours["attempts"] and counts["success"] == row["successes"]
+    assert (out / "sr_cr_vs_weight.png").stat().st_size > 1000
+    scene = json.loads((out / "scenes" / "packed_000.json").read_text())
+    assert [o["source"]["proc_seed"] for o in scene["objects"]] == [protocol.PROCEDURAL_SEED] * protocol.OBJECTS_PER_SCENE
+
+    # Finished rounds are not run again.
+    monkeypatch.setattr(bench_rounds, "run_round", lambda task: pytest.fail("a finished round ran again"))
+    assert cb.main(argv) == 0
+    monkeypatch.undo()
+    first = (out / "attempts.json").read_text()
+    # A partial run (one round's file lost) resumes to the same results.
+    (out / "rounds" / "ours" / "0.3" / "packed_000.json").unlink()
+    (out / "attempts.json").unlink()
+    assert cb.main(argv) == 0
+    assert (out / "attempts.json").read_text() == first
+    # Another configuration in the same directory is refused.
+    assert cb.main(argv + ["--hold-s", "2"]) == 2
+    assert "another configuration" in capsys.readouterr().err
+
+
+def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_removed():
+    """The cell on its own: a 34 mm cylinder (procedural test object 1) upright, a
+    top-down grasp 2.5 cm below its top -> executor, 1 s hold, shake, removal."""
+    import dataclasses
+
+    from sim_bridge.datagen.object_grasps import procedural_sources
+    from sim_bridge.world import R_TOP_DOWN
+
+    source = procedural_sources(protocol.PROCEDURAL_POOL, protocol.PROCEDURAL_SEED)[1]
+    mesh = source.load().collision_mesh()
+    height_m = float(mesh.extents[2])
+    assert mesh.extents[0] < 0.05 and 0.08 < height_m < 0.15  # a slim upright cylinder
+    X = np.eye(4)
+    X[:3, 3] = [0.15, 0.15, 0.051 - mesh.bounds[0][2]]
+    scene = {"scene_id": "packed_t", "arrangement": "packed",
+             "objects": [{"source": dataclasses.asdict(source), "name": "c", "X_task_object": X.tolist()}]}
+    cell = sim_cell.SimCell(scene, 0.5, protocol.Protocol(time_step_s=0.002), tsdf.TSDFVolume(resolution=40))
+    view = cell.observe()
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = R_TOP_DOWN, [0.15, 0.15, 0.05 + height_m - 0.025]
+    g = types.SimpleNamespace(pose=pose, score_n=1.0, validness=1.0)
+    assert cell.feasible(g, view) == ""
+    result = cell.execute(g, view)
+    assert result["outcome"] == "success", result
+    assert len(result["lifted"]) == 1
+    assert cell.objects_on_table() == [] and cell.world.object_names() == []  # removed
+    assert np.allclose(cell.world.tcp_pose()[:3, 3], cell.home[:3, 3], atol=1e-3)  # back home
+    assert cell.world.finger_width_m() > 0.08  # open

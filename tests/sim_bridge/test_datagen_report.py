@@ -1,0 +1,46 @@
+import json
+
+import numpy as np
+import pytest
+
+from sim_bridge.datagen.data_report import main
+from sim_bridge.datagen.object_grasps import MODE_NAMES
+
+pytestmark = pytest.mark.drake
+
+
+def write_table(d, name, modes, scores):
+    modes = np.asarray(modes, np.uint8)
+    np.savez(d / f"{name}.npz", mode=modes, grasped=modes != 2, scores_n=np.asarray(scores, np.float32),
+             wall_time_s=np.full(len(modes), 2.0, np.float32), mode_names=np.asarray(MODE_NAMES))
+
+
+def test_report_counts_and_last_lines(tmp_path, capsys):
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    write_table(objects, "a", [0, 0, 1, 2], np.full((4, 6), 10.0))
+    write_table(objects, "b", [1, 2], np.full((2, 6), 5.0))
+    (objects / "c.skip.json").write_text(json.dumps({"name": "c", "reason": "c: mass 0.0 kg is not positive"}))
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    np.savez(scenes / "000000.npz", label_score=np.array([3.0, 4.0], np.float32), label_mode=np.array([0, 1], np.uint8),
+             arrangement=np.asarray("pile"))
+    assert main([str(tmp_path)]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-4:] == ["objects=2", "grasps=4", "power_fraction=0.5000", "labels_per_scene_median=2"]
+    assert any("c: mass 0.0 kg is not positive" in line for line in out)
+    assert any("labels per scene mean 2.0" in line for line in out)
+    assert (tmp_path / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # committed tables and regenerated scenes live apart: --scenes names the scene stage's --out
+    tables = tmp_path / "tables"
+    (objects).rename(tables)
+    assert main([str(tables), "--scenes", str(tmp_path), "--png", str(tmp_path / "r2.png")]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "labels_per_scene_median=2"
+    assert main([str(tables), "--png", str(tmp_path / "r3.png")]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "labels_per_scene_median=n/a"
+
+
+def test_report_on_an_empty_directory_is_one_clear_line(tmp_path, capsys):
+    assert main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "no grasp tables" in err and len(err.strip().splitlines()) == 1

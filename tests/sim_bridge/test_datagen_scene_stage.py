@@ -1,0 +1,115 @@
+"""Scene stage on hand-made grasp tables (the object stage's output format): real
+Drake settling, real ray-cast depth and TSDF; labels checked against Eq. 1, the
+voxel grid and the collision model; deterministic and resumable per scene."""
+
+import pathlib
+
+import numpy as np
+import pytest
+import trimesh
+
+from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
+from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
+from sim_bridge.datagen.scene_dataset import run_scene_stage
+from sim_bridge.datagen.voxel_labels import RESOLUTION
+from sim_bridge.physics import hand_collision
+from sim_bridge.physics.gravity_projection import gravity_rejection_score
+from sim_bridge.physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
+
+from test_datagen_objects import write_urdf
+
+pytestmark = pytest.mark.drake
+
+
+@pytest.fixture(scope="module")
+def grasp_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scene_data")
+    meshes = root / "meshes"
+    meshes.mkdir()
+    shapes = {"box": trimesh.creation.box((0.05, 0.06, 0.08)),
+              "cyl": trimesh.creation.cylinder(radius=0.025, height=0.10, sections=32),
+              "cube": trimesh.creation.box((0.045, 0.045, 0.045))}
+    objects = root / "objects" / "objects"
+    objects.mkdir(parents=True)
+    for k, (name, mesh) in enumerate(shapes.items()):
+        write_urdf(meshes, name, mesh, 0.2)
+        X = sample_grasp_candidates(mesh, 300, seed=k)
+        n = len(X)
+        rng = np.random.default_rng(k)
+        scores = rng.uniform(1, 60, (n, 6)).astype(np.float32)
+        grasped = rng.uniform(size=n) < 0.9
+        mode = np.where(grasped, rng.integers(0, 2, n), 2).astype(np.uint8)
+        # the hand settles ~5 mm deeper than it was driven (as power grasps do): labels
+        # must carry the commanded pose, which clears the object
+        settled = X.copy()
+        settled[:, :3, 3] += 0.005 * X[:, :3, 2]
+        np.savez(objects / f"{name}.npz", name=np.asarray(name), source_kind=np.asarray("mesh"),
+                 source=np.asarray(f"{name}.urdf"), X_object_tcp_candidate=X.astype(np.float32),
+                 X_object_tcp=settled.astype(np.float32),
+                 scores_n=np.where(grasped[:, None], scores, 0), mode=mode, grasped=grasped,
+                 mode_names=np.asarray(MODE_NAMES))
+    return root
+
+
+def run(grasp_data, out, n):
+    return run_scene_stage(out, grasp_data / "objects", [grasp_data / "meshes"], n, seed=5, workers=2,
+                           max_objects=3, max_views=3, progress=False)
+
+
+@pytest.fixture(scope="module")
+def scenes(grasp_data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("scenes_out")
+    s = run(grasp_data, out, 3)
+    assert s["done"] == 3 and s["error"] == 0, s["errors"]
+    return out
+
+
+def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
+    total = 0
+    for p in sorted((scenes / "scenes").glob("*.npz")):
+        z = dict(np.load(p))
+        assert z["tsdf"].shape == (RESOLUTION,) * 3 and z["tsdf"].dtype == np.float32
+        assert 0 <= z["tsdf"].min() and z["tsdf"].max() <= 1 and (z["tsdf"] > 0).sum() > 1000
+        assert 1 <= len(z["T_task_camera"]) <= 3 and str(z["arrangement"]) in ("packed", "pile")
+        K = len(z["label_score"])
+        total += K
+        assert K <= z["n_grasps_collision_free"] <= z["n_grasps_projected"]
+        assert len(np.unique(z["label_index"], axis=0)) == K  # one label per voxel
+        tables = [load_table(grasp_data / "objects" / "objects" / f"{n}.npz") for n in z["object_names"]]
+        X_obj = z["X_task_object"].astype(np.float64)
+        others = []
+        for k in range(len(tables)):
+            m = trimesh.load(grasp_data / "meshes" / f"{z['object_names'][k]}.obj")
+            others.append(hand_collision.surface_points(m) @ X_obj[k, :3, :3].T + X_obj[k, :3, 3])
+        for i in range(K):
+            k, row = z["label_object"][i], z["label_grasp"][i]
+            t = tables[k]
+            assert t["grasped"][row] and z["label_mode"][i] == t["mode"][row] != 2
+            assert str(z["label_pose"]) == "commanded"
+            X = X_obj[k] @ t["X_object_tcp_candidate"][row].astype(np.float64)
+            # the label sits in the voxel of the grasp's TCP, with its axes
+            np.testing.assert_array_equal(z["label_index"][i], np.floor(X[:3, 3] / (VOLUME_SIZE_M / RESOLUTION)))
+            np.testing.assert_allclose(z["label_e_x"][i], X[:3, 0], atol=1e-5)
+            np.testing.assert_allclose(z["label_e_z"][i], X[:3, 2], atol=1e-5)
+            # f_g is Eq. 1 of this grasp's scores in this scene's pose
+            assert z["label_score"][i] == pytest.approx(gravity_rejection_score(t["scores_n"][row], X[:3, :3]), rel=1e-5)
+            # and the open hand there, with its approach, clears the table and every object
+            # (its own too: the commanded pose is where the open hand really goes)
+            obst = np.concatenate(others)
+            assert not hand_collision.collides(X, obst, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)[0]
+    assert total > 30
+
+
+def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(grasp_data, scenes, tmp_path):
+    # regenerate only scene 1 in a new directory: scenes 0 and 2 copied, 1 missing
+    (tmp_path / "scenes").mkdir()
+    for i in (0, 2):
+        (tmp_path / "scenes" / f"{i:06d}.npz").write_bytes((scenes / "scenes" / f"{i:06d}.npz").read_bytes())
+    (tmp_path / "scenes" / ".000001.npz.1234.tmp").write_bytes(b"partial write of a killed run")
+    s = run(grasp_data, tmp_path, 3)
+    assert s["done"] == 3
+    assert not list((tmp_path / "scenes").glob("*.tmp"))
+    a, b = np.load(scenes / "scenes" / "000001.npz"), np.load(tmp_path / "scenes" / "000001.npz")
+    assert sorted(a.files) == sorted(b.files)
+    for key in a.files:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)

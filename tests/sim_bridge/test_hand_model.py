@@ -1,0 +1,84 @@
+"""The 2F-85 Drake model: exported dimensions match the model, flange placement."""
+
+import numpy as np
+import pytest
+from pydrake.geometry import AddCompliantHydroelasticProperties, ProximityProperties
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+from pydrake.systems.framework import DiagramBuilder
+
+from sim_bridge.physics import hand_model
+
+pytestmark = pytest.mark.drake
+
+
+def build(**kw):
+    plant, sg = AddMultibodyPlantSceneGraph(DiagramBuilder(), 2e-3)
+    props = ProximityProperties()
+    AddCompliantHydroelasticProperties(0.01, 1e8, props)
+    hand = hand_model.add_hand(plant, sg, props, **kw)
+    plant.Finalize()
+    return plant, hand, plant.CreateDefaultContext()
+
+
+def test_exported_dimensions_match_the_model():
+    plant, hand, ctx = build()
+    X_tcp_W = plant.CalcRelativeTransform(ctx, hand.tcp_frame, plant.world_frame())
+    faces, tops = [], []
+    for side in ("left", "right"):
+        pad = plant.GetBodyByName(f"{side}_pad")
+        X_W_pad = plant.EvalBodyPoseInWorld(ctx, pad)
+        # Menagerie pad box: inner face at y = -6.6 mm, spans z 0..37.5 mm in the pad frame
+        faces.append((X_tcp_W @ X_W_pad).multiply([0.0, -0.0066, 0.01875]))
+        tops.append((X_tcp_W @ X_W_pad).multiply([0.0, -0.0066, 0.0375]))
+    assert np.linalg.norm(faces[0] - faces[1]) == pytest.approx(hand_model.MAX_STROKE_M, abs=1e-3)
+    assert faces[0][1] == pytest.approx(-faces[1][1], abs=1e-6)  # symmetric about the TCP
+    assert tops[0][2] == pytest.approx(hand_model.FINGER_LENGTH_M - hand_model.PALM_TO_TCP_M, abs=1e-3)
+    X_flange_tcp = plant.CalcRelativeTransform(ctx, hand.flange_frame, hand.tcp_frame)
+    np.testing.assert_allclose(X_flange_tcp.GetAsMatrix4(), hand_model.X_flange_tcp(), atol=1e-9)
+    # the closing axis (TCP y) points at the right finger
+    right = plant.EvalBodyPoseInWorld(ctx, plant.GetBodyByName("right_pad")).translation()
+    assert X_tcp_W.multiply(right)[1] > 0.03
+
+
+def test_flange_can_be_placed_or_floating():
+    X = RigidTransform(RollPitchYaw(0.3, -0.2, 1.0), [0.1, -0.2, 0.5])
+    plant, hand, ctx = build(X_W_flange=X)
+    X_W_tcp = plant.CalcRelativeTransform(ctx, plant.world_frame(), hand.tcp_frame)
+    np.testing.assert_allclose(X_W_tcp.GetAsMatrix4(), X.GetAsMatrix4() @ hand_model.X_flange_tcp(), atol=1e-9)
+    welded_dofs = plant.num_positions()
+    plant_f, hand_f, ctx_f = build(X_W_flange=X, floating=True)
+    assert plant_f.num_positions() == welded_dofs + 7
+    X_W_tcp_f = plant_f.CalcRelativeTransform(ctx_f, plant_f.world_frame(), hand_f.tcp_frame)
+    np.testing.assert_allclose(X_W_tcp_f.GetAsMatrix4(), X_W_tcp.GetAsMatrix4(), atol=1e-9)
+
+
+def test_underactuation_is_restored():
+    plant, hand, ctx = build()
+    assert plant.num_actuators() == 2
+    # two ball constraints (linkage closures) + one coupler (one motor, two fingers)
+    assert plant.num_constraints() == 3
+    spring = plant.GetJointByName("left_spring_link_joint")
+    assert spring.position_lower_limits()[0] == pytest.approx(-0.2967, abs=1e-3)
+    assert hand.driver_joints[0].position_upper_limits()[0] == pytest.approx(hand_model.DRIVER_CLOSED_RAD)
+
+
+@pytest.mark.parametrize("pad_contact_points", [False, True])
+def test_hand_geometry_links_are_valid_after_finalize(pad_contact_points):
+    """add_hand's GeometryId -> link map must still name every hand collision geometry
+    after more geometry (the pad sphere grid, an object) was registered and the plant
+    finalized (the pad boxes' ids used to read as garbage with the sphere grid)."""
+    from pydrake.geometry import Box
+    from pydrake.multibody.plant import CoulombFriction
+    from pydrake.multibody.tree import SpatialInertia
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=1e-3)
+    props = ProximityProperties()
+    hand = hand_model.add_hand(plant, scene_graph, props, pad_contact_points=pad_contact_points)
+    body = plant.AddRigidBody("obj", plant.AddModelInstance("obj"), SpatialInertia.SolidBoxWithMass(0.1, 0.03, 0.03, 0.03))
+    plant.RegisterCollisionGeometry(body, RigidTransform(), Box(0.03, 0.03, 0.03), "obj", CoulombFriction(0.5, 0.5))
+    plant.Finalize()
+    stored = {int(g.get_value()): name for g, name in hand.geometry_links.items()}
+    assert stored == hand.collision_geometry_links(plant)
+    assert sum(n.endswith("_pad") for n in stored.values()) >= (18 if pad_contact_points else 2)

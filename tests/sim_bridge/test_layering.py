@@ -1,0 +1,87 @@
+"""sim_bridge's sub-packages import downwards only (sim_bridge/sim_bridge/__init__.py):
+physics at the bottom, then datagen and world side by side, benchmark, ros on top. Only
+ros talks to ROS. Read from the source with `ast`, so an import inside a function counts."""
+
+import ast
+import pathlib
+import sys
+
+import pytest
+
+PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge"
+PLUMBING = {"parallel"}  # shared modules at the top; they import no sub-package
+ALLOWED = {  # sub-package -> the sub-packages it may import (besides itself and PLUMBING)
+    "physics": set(),
+    "datagen": {"physics"},
+    "world": {"physics"},
+    "benchmark": {"physics", "datagen", "world"},
+    "ros": {"physics", "world", "benchmark"},
+}
+ROS_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "gravgrasp_msgs", "builtin_interfaces")
+
+
+def _modules():
+    return sorted(p for p in PACKAGE_DIR.rglob("*.py"))
+
+
+def _imports(path: pathlib.Path):
+    """(absolute module name, line) for every import in `path`."""
+    rel = path.relative_to(PACKAGE_DIR.parent).with_suffix("")
+    package = list(rel.parts[:-1]) if rel.name != "__init__" else list(rel.parts[:-1])
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            if node.module is None:  # from . import a, b
+                for alias in node.names:
+                    yield f"{module}.{alias.name}", node.lineno
+            else:
+                yield module, node.lineno
+
+
+def _sub_package(path: pathlib.Path):
+    parts = path.relative_to(PACKAGE_DIR).parts
+    return parts[0] if len(parts) > 1 else None
+
+
+def test_every_module_sits_in_a_known_sub_package_or_is_plumbing():
+    stray = [p.name for p in PACKAGE_DIR.glob("*.py") if p.stem not in PLUMBING | {"__init__"}]
+    assert not stray, f"flat modules in sim_bridge/sim_bridge (move them into a sub-package): {stray}"
+    subs = {p.name for p in PACKAGE_DIR.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert subs == set(ALLOWED), subs
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE_DIR)))
+def test_imports_point_down(path):
+    own = _sub_package(path)
+    wrong = []
+    for module, line in _imports(path):
+        parts = module.split(".")
+        if parts[0] in ROS_MODULES and own != "ros":
+            wrong.append(f"line {line}: {module} (only sim_bridge.ros talks to ROS)")
+        if parts[0] != "sim_bridge" or len(parts) < 2:
+            continue
+        target = parts[1]
+        if target in PLUMBING:
+            continue
+        if own is None:
+            wrong.append(f"line {line}: {module} (plumbing imports no sub-package)")
+        elif target != own and target not in ALLOWED[own]:
+            wrong.append(f"line {line}: {module} ({own} may import {sorted(ALLOWED[own]) or 'nothing'})")
+        elif target == "world" and own != "world" and len(parts) > 2:
+            wrong.append(f"line {line}: {module} (use the names sim_bridge.world exports, not its modules)")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_check_sees_a_bad_import(tmp_path, monkeypatch):
+    """The check itself: an upward import in physics is caught."""
+    fake = tmp_path / "sim_bridge"
+    (fake / "physics").mkdir(parents=True)
+    bad = fake / "physics" / "bad.py"
+    bad.write_text("def f():\n    from ..world.sim_world import SimWorld\n")
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE_DIR", fake)
+    with pytest.raises(AssertionError, match="physics may import nothing"):
+        test_imports_point_down(bad)

@@ -1,0 +1,132 @@
+"""One parameter file per cell: the two samples (gravgrasp_detector/cells/) start the
+stack; the simulated one picks an object end to end, the UR5e one runs until it needs
+the robot and says so. Plus what `stack` derives from and checks in a cell file."""
+import math
+import pathlib
+import re
+
+import numpy as np
+import pytest
+from gravgrasp_msgs.msg import GraspArray, ObjectStates
+from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
+from std_srvs.srv import SetBool
+
+from gravgrasp_detector.cell_config import (CellConfigError, base_in_task, check_consistency, load_sections,
+                                            params_files, plan, unknown_parameters)
+from gravgrasp_detector.ur_arm import xyz_yaw_to_matrix
+from ros_testing import BackgroundSpin, wait_until
+
+pytestmark = pytest.mark.drake
+
+CELLS = pathlib.Path(__file__).resolve().parents[2] / "gravgrasp_detector" / "cells"
+SIM, UR = CELLS / "sim.yaml", CELLS / "ur5e_2f85_realsense.yaml"
+STACK = dict(arm_adapter="service", workspace_origin_in_base=[0.0] * 4, object_mass_kg=0.0, score_safety_factor=1.5)
+
+
+def test_workspace_origin_becomes_the_base_pose():
+    origin = [0.30, -0.15, 0.02, math.pi / 2]
+    base = base_in_task(origin)
+    X_base_task = xyz_yaw_to_matrix(origin)
+    np.testing.assert_allclose(xyz_yaw_to_matrix(base) @ X_base_task, np.eye(4), atol=1e-12)
+    p = plan({**STACK, "workspace_origin_in_base": origin, "object_mass_kg": 0.5}, {})
+    assert "execute:arm_base_xyz_yaw:=" in " ".join(p.overrides) and "ur_arm:base_xyz_yaw:=" in " ".join(p.overrides)
+    assert "-p detect:min_score_n:=7.3575" in " ".join(p.overrides)
+    print(p.notes)
+
+
+def test_plan_refuses_conflicts_and_bad_values():
+    with pytest.raises(CellConfigError, match="both place the robot"):
+        plan({**STACK, "workspace_origin_in_base": [0.3, 0.0, 0.0, 0.0]}, {"execute": {"arm_base_xyz_yaw": [0.0] * 4}})
+    with pytest.raises(CellConfigError, match="both set the score threshold"):
+        plan({**STACK, "object_mass_kg": 1.0}, {"detect": {"min_score_n": 5.0}})
+    with pytest.raises(CellConfigError, match="arm_adapter is 'moveit'"):
+        plan({**STACK, "arm_adapter": "moveit"}, {})
+    with pytest.raises(CellConfigError, match="tcp_offset_m 0.174 .* disagree"):
+        check_consistency({"arm_base_xyz_yaw": [0.0] * 4, "tcp_offset_m": 0.174},
+                          {"base_xyz_yaw": [0.0] * 4, "tcp_in_flange": [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]})
+
+
+def test_samples_parse_and_name_only_real_parameters():
+    assert params_files(["stack", "--ros-args", "--params-file", str(UR), "-p", "a:=1"]) == [UR]
+    for path in (SIM, UR):
+        sections = load_sections([path])
+        assert {"stack", "tsdf", "detect", "execute"} <= set(sections)
+    assert unknown_parameters({"execute": {"gripper_prot": "x", "qos_overrides./a.subscription.depth": 1}},
+                              {"execute": {"gripper_port"}}) == ["execute.gripper_prot"]
+
+
+@pytest.fixture
+def spin(ros_node):
+    spinner = BackgroundSpin(ros_node)
+    yield spinner
+    spinner.shutdown()
+
+
+def test_ur_sample_starts_until_it_needs_the_robot(ros_process, ros_node, spin):
+    """The real ur_rtde tries 192.168.1.102 (no robot here): every node starts, says what
+    is missing, and keeps serving; nothing moves while the executor is disarmed."""
+    stack = ros_process("gravgrasp_detector", "stack", cmd=[
+        str(pathlib.Path(__file__).resolve().parents[2] / "ros_ws/install/gravgrasp_detector/lib/gravgrasp_detector/stack"),
+        "--ros-args", "--params-file", str(UR)])
+    stack.wait_for_output("execute ready", timeout_s=120)
+    stack.wait_for_output("ur_arm ready", timeout_s=30)
+    unreachable = stack.wait_for_output(r"cannot reach the UR controller at 192\.168\.1\.102: [^\n]*", 60).group(0)
+    port = stack.wait_for_output(r"gripper_port /dev/serial/by-id/\S+ does not exist[^\n]*", 10).group(0)
+    notes = re.findall(r"cell: [^\n]*", stack.output())
+    print("\n" + "\n".join([unreachable, port] + notes))
+    assert any("detect.min_score_n 7.36 N" in n for n in notes) and any("robot base" in n for n in notes)
+    assert "camera pose from parameter" in stack.output()
+    move = MoveToPose.Request(speed_mps=0.05)
+    move.target.header.frame_id = "task"
+    move.target.pose.position.x, move.target.pose.position.y, move.target.pose.position.z = 0.15, 0.15, 0.2
+    move.target.pose.orientation.x, move.target.pose.orientation.w = 1.0, 0.0
+    answer = spin.call(ros_node.create_client(MoveToPose, "move_to_pose"), move, 30)
+    assert not answer.success and answer.message.startswith("arm connection lost"), answer.message
+    request = ExecuteGrasp.Request()
+    request.header.frame_id = "task"
+    request.grasp.pose.position.x, request.grasp.pose.position.y, request.grasp.pose.position.z = 0.15, 0.15, 0.08
+    request.grasp.pose.orientation.x, request.grasp.pose.orientation.w = 1.0, 0.0
+    result = spin.call(ros_node.create_client(ExecuteGrasp, "execute_grasp"), request, 30)
+    # No camera here: refused for the missing view (before it would refuse as disarmed).
+    assert result.result_code == ExecuteGrasp.Response.STALE_SCENE and "no TSDF" in result.message, result.message
+    assert stack.alive()
+
+
+def test_a_typo_in_the_cell_file_stops_the_start(ros_process, tmp_path):
+    bad = tmp_path / "cell.yaml"
+    bad.write_text(SIM.read_text().replace("gripper_port:", "gripper_prot:"))
+    stack = ros_process("gravgrasp_detector", "stack", cmd=[
+        str(pathlib.Path(__file__).resolve().parents[2] / "ros_ws/install/gravgrasp_detector/lib/gravgrasp_detector/stack"),
+        "--ros-args", "--params-file", str(bad)])
+    assert stack.wait_exit(120) == 2
+    assert "cannot start: the parameter file gives execute.gripper_prot, which no node of the stack declares" in stack.output()
+
+
+def test_sim_sample_end_to_end(ros_process, ros_node, spin, tmp_path):
+    """sim bridge + stack from the one file: depth -> tsdf -> detect -> /grasps -> execute
+    over DDS and Modbus RTU -> the box is lifted. The scene (seed 2: one 44x55x103 mm box)
+    and the pty path are the test's; the rest is the sample."""
+    link = str(tmp_path / "ttyCellGripper")
+    installed = pathlib.Path(__file__).resolve().parents[2] / "ros_ws/install"
+    sim = ros_process("sim_bridge", "sim", cmd=[
+        str(installed / "sim_bridge/lib/sim_bridge/sim"), "--ros-args", "--params-file", str(SIM),
+        "-p", "sim:seed:=2", "-p", "sim:n_objects:=1", "-p", f"sim:gripper_link:={link}"])
+    sim.wait_for_output("sim ready", timeout_s=180)
+    stack = ros_process("gravgrasp_detector", "stack", cmd=[
+        str(installed / "gravgrasp_detector/lib/gravgrasp_detector/stack"), "--ros-args", "--params-file", str(SIM),
+        "-p", f"execute:gripper_port:={link}"])
+    stack.wait_for_output("execute ready", timeout_s=120)
+    assert "detect.min_score_n 1.47 N" in stack.output()
+    seen = {}
+    ros_node.create_subscription(GraspArray, "grasps", lambda m: seen.__setitem__("grasps", m), 10)
+    ros_node.create_subscription(ObjectStates, "object_states", lambda m: seen.__setitem__("states", m), 10)
+    assert wait_until(lambda: "states" in seen and seen.get("grasps") is not None and len(seen["grasps"].grasps) > 0, 120), \
+        "no grasps from the stack"
+    grasps = seen["grasps"].grasps
+    assert min(g.gravity_rejection_score for g in grasps) >= 1.47
+    assert spin.call(ros_node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    result = spin.call(ros_node.create_client(ExecuteGrasp, "execute_grasp"),
+                       ExecuteGrasp.Request(use_index=True, grasp_index=0), 300)
+    print(f"\nsim cell: top grasp {grasps[0].gravity_rejection_score:.1f} N -> {result.message}")
+    assert result.result_code == ExecuteGrasp.Response.SUCCESS, result.message
+    assert wait_until(lambda: seen["states"].lifted[0], 15), "not lifted in the ground truth"
