@@ -1,7 +1,8 @@
 """The ROS edge every node of the project shares: geometry_msgs poses <-> 4x4 matrices,
 parameter descriptors, and `run_node`, which starts, spins and shuts a node down.
 
-A node's `main` is one line, e.g. `return run_node("tsdf", TSDFNode, InputError)`:
+A node's `main` is one line, e.g. `return run_node("tsdf", TSDFNode, InputError)`
+(`spin` alone for a process that builds several nodes itself, as `stack` does):
 a start-up error in the node's constructor (bad parameter, missing model file) prints one
 line, "[FATAL] [<node>]: cannot start: <why>", and the process exits 2; Ctrl-C and an
 external shutdown end it with 0 after `node.close()` (if the node has one).
@@ -70,10 +71,7 @@ def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | No
     end the process with one line and code 2 (anything else is a bug: traceback).
     `threads`: None spins a single-threaded executor, else a MultiThreadedExecutor.
     """
-    # rclpy here, not at the top: the message conversions above also serve modules that
-    # stay rclpy-free (markers).
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+    import rclpy  # here, not at the top: see spin
 
     rclpy.init(args=args)
     try:
@@ -82,16 +80,29 @@ def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | No
         rclpy.logging.get_logger(name).fatal(f"cannot start: {err}")
         rclpy.try_shutdown()
         return 2
+    return spin([node], threads)
+
+
+def spin(nodes, threads: int | None = None) -> int:
+    """Spin `nodes` (rclpy already initialised) until Ctrl-C or shutdown; then
+    `close()` each node that has one, destroy them and shut rclpy down; -> 0."""
+    # rclpy here, not at the top: the message conversions above also serve modules that
+    # stay rclpy-free (markers).
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+
     executor = SingleThreadedExecutor() if threads is None else MultiThreadedExecutor(num_threads=threads)
-    executor.add_node(node)
+    for node in nodes:
+        executor.add_node(node)
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         executor.shutdown()
-        if hasattr(node, "close"):
-            node.close()
-        node.destroy_node()
+        for node in nodes:
+            if hasattr(node, "close"):
+                node.close()
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0

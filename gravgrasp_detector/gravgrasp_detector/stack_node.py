@@ -23,14 +23,13 @@ import sys
 
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from .cell_config import CellConfigError, check_consistency, load_sections, params_files, plan, unknown_parameters
 from .detect_node import DetectNode
 from .execute_node import ExecuteNode
 from .model_file import ModelFileError
-from .ros_interface import described
+from .ros_interface import described, spin
 from .tsdf import InputError
 from .tsdf_node import TSDFNode
 
@@ -100,20 +99,7 @@ def main(args=None):
         execute.get_logger().warn(
             f"gripper_port {port} does not exist (yet): plug in the 2F-85's USB-RS485 adapter and check "
             "'ls -l /dev/serial/by-id/' (use that stable path), and that this user is in the dialout group")
-    executor = MultiThreadedExecutor(num_threads=6 + (2 if cell.arm_adapter == "ur" else 0))
-    for node in nodes:
-        executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        for node in nodes:
-            if hasattr(node, "close"):
-                node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin(nodes, threads=6 + (2 if cell.arm_adapter == "ur" else 0))
 
 
 if __name__ == "__main__":

@@ -6,8 +6,8 @@ import threading
 
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
+from gravgrasp_detector.ros_interface import spin
 from gravgrasp_msgs.srv import MoveToPose
 
 
@@ -23,18 +23,13 @@ def main():
 
     node.create_service(MoveToPose, "move_to_pose", move, callback_group=ReentrantCallbackGroup())
     print("hanging_arm ready", flush=True)
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(node)
+    # Leave the graph without answering the motion in flight (an adapter that is stopped
+    # mid-move; a killed one is noticed only when DDS's participant lease runs out, 20 s
+    # with Fast DDS's defaults, so arm_timeout_s bounds that case); os._exit, because the
+    # callback thread that never returns would keep the interpreter from exiting.
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin([node], threads=2)
     finally:
-        # Leave the graph without answering the motion in flight (an adapter that is
-        # stopped mid-move; a killed one is noticed only when DDS's participant lease runs
-        # out, 20 s with Fast DDS's defaults, so arm_timeout_s bounds that case).
-        node.destroy_node()
-        rclpy.try_shutdown()
         os._exit(0)
 
 

@@ -54,7 +54,6 @@ from gravgrasp_detector.tsdf import CameraIntrinsics
 
 from ..physics import hand_model
 from ..physics.actuators import FingerServoSystem, driver_torque_nm
-from ..physics.depth_rendering import look_at
 from ..physics.objects import load_mesh_object, random_procedural_objects
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from .config import BARE_MESH_DENSITY_KG_M3, R_TOP_DOWN, SceneConfig, WorldSettings, pose
@@ -576,6 +575,9 @@ class SimWorld:
     # -- camera -------------------------------------------------------------------
 
     def camera_pose(self) -> np.ndarray:
+        # depth_rendering loads open3d (ray casting): only when the camera is used.
+        from ..physics.depth_rendering import look_at
+
         c = self.settings.camera
         return look_at(c.position_m, c.target_m)
 
