@@ -28,6 +28,7 @@ setup(
             "soak = sim_bridge.ros.soak:main",
             "bench_datagen = sim_bridge.datagen.bench_datagen:main",
             "label_settings_study = sim_bridge.datagen.label_settings_study:main",
+            "symmetry_study = sim_bridge.datagen.symmetry_study:main",
         ],
     },
 )
