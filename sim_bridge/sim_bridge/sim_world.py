@@ -38,9 +38,11 @@ step the world while other threads command it and read from it.
 
 from __future__ import annotations
 
+import gc
 import math
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -201,8 +203,11 @@ class FingerServoSystem(LeafSystem):
         self._state = self.DeclareVectorInputPort("state", plant.num_multibody_states())
         self._ref = self.DeclareDiscreteState(1)
         self._params = self.DeclareNumericParameter(BasicVector([0.0, 1.0, 1.0]))
-        self.DeclarePeriodicDiscreteUpdateEvent(time_step_s, 0.0, self._update)
-        self.DeclareVectorOutputPort("actuation", 2, self._calc)
+        # Callbacks through a weak reference: a bound method held by the C++ side would
+        # keep this object (and the C++ system it owns once its diagram is gone) alive.
+        me = weakref.ref(self)
+        self.DeclarePeriodicDiscreteUpdateEvent(time_step_s, 0.0, lambda c, s: me()._update(c, s))
+        self.DeclareVectorOutputPort("actuation", 2, lambda c, out: me()._calc(c, out))
 
     def set_command(self, context, target_rad, rate_rad_s, torque_limit_nm):
         context.get_mutable_numeric_parameter(self._params).SetFromVector(
@@ -249,6 +254,22 @@ class WorldDiagram:
     hand_geometries: frozenset  # collision geometry id values of the hand
     finger_geometries: frozenset
     hand_bodies: frozenset  # BodyIndex of every hand link
+
+    def release(self) -> None:
+        """Let the garbage collector free this diagram; call only when discarding it (no
+        system of it may be used after).
+
+        pydrake (1.51) never frees a diagram that holds a Python LeafSystem: C++ keeps the
+        Python system alive while the diagram lives, and the system keeps its builder and
+        diagram alive through pydrake's reference-cycle bookkeeping, a cycle through C++
+        that gc cannot see (+15 MB of RSS per load_scene in the sim bridge). Emptying the
+        Python systems' attributes (that bookkeeping lives there) breaks it; their
+        callbacks hold them only weakly (FingerServoSystem). tests/test_sim_world_memory.py
+        measures that repeated resets stay flat.
+        """
+        for system in self.diagram.GetSystems():
+            if not type(system).__module__.startswith("pydrake"):
+                vars(system).clear()
 
 
 def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
@@ -388,7 +409,9 @@ class SimWorld:
         with self._lock:
             if self._motion is not None and not self._motion.done.is_set():
                 self._motion.finish(False, "interrupted: the scene was reloaded")
+            old = getattr(self, "w", None)
             self.w = build_world_diagram(named, self.settings)
+            self.scenes_loaded = getattr(self, "scenes_loaded", 0) + 1
             self.scene_config = scene_config
             self.names = [n for n, _ in named]
             self._specs = {n: spec for n, spec in named}
@@ -416,7 +439,12 @@ class SimWorld:
                                             driver_torque_nm(self.settings.contact.grip_force_n))
             self.simulator.Initialize()
             self._advance_locked(self.settings.settle_time_s)
-            return list(self.names)
+            names = list(self.names)
+        if old is not None:  # free the previous scene's diagram now (see WorldDiagram.release)
+            old.release()
+            del old
+            gc.collect()
+        return names
 
     def _draw_scene(self, cfg: SceneConfig):
         from .objects import load_mesh_object, random_procedural_objects
