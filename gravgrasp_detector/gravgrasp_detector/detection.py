@@ -65,9 +65,10 @@ def resolve_precision(precision):
 
 
 def _prepare(model, precision):
-    # channels_last_3d routes every conv to oneDNN, in fp32 too (contiguous fp32 3-D
-    # convs fall back to PyTorch's slow_conv3d here), and avoids layout reorders.
-    layout = torch.channels_last_3d
+    # bf16 (autocast): channels_last_3d routes every conv to oneDNN and avoids layout
+    # reorders. fp32 convs go to oneDNN in either layout (networks._conv3d), and the
+    # contiguous one was ~8 % faster on an AVX2 EPYC (19.8-21.1 vs 22.1-23.6 ms CPU).
+    layout = torch.channels_last_3d if precision == "bf16" else torch.contiguous_format
     if getattr(model, "_gravgrasp_layout", None) != layout:
         model.to(memory_format=layout)
         model._gravgrasp_layout = layout
