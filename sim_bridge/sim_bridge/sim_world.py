@@ -444,6 +444,7 @@ class SimWorld:
             old.release()
             del old
             gc.collect()
+            _return_freed_memory()
         return names
 
     def _draw_scene(self, cfg: SceneConfig):
@@ -957,6 +958,19 @@ def _shape_mesh(shape):
         m.apply_scale(shape.scale3())
         return m.convex_hull if isinstance(shape, Convex) else m
     return None
+
+
+def _return_freed_memory():
+    """Hand freed heap pages back to the OS (glibc malloc_trim; elsewhere nothing). A
+    scene is ~15 MB of small allocations, and the sim node reloads it from whichever
+    executor thread serves load_scene: each thread's malloc arena kept its freed scene,
+    +75 MB over 4 reloads in a 10 min soak, until trimmed."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _cross(a, b):
