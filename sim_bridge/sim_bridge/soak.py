@@ -252,8 +252,8 @@ def run(args) -> dict:
     for n in rss_start:
         print(f"rss_{n}_kb={rss_start[n]}->{rss_end[n]} growth={growth[n] * 100:.2f}% alive={int(alive[n])}")
     print(f"frames_published={replay.published}")
-    print(f"frames_received_by_tsdf={report['frames_received_by_tsdf']} (the rest overflowed its best-effort "
-          "queue of 5 while it was busy: dropped)")
+    print(f"frames_received_by_tsdf={report['frames_received_by_tsdf']} (the rest were lost in transport or "
+          "superseded by a newer frame in its queue of 1 while it was busy)")
     print(f"frames_fused={report['frames_fused']}")
     print(f"volumes_published={report['volumes_published']} volumes_superseded_in_detect={report['volumes_superseded']}")
     print(f"grasps_received={replay.grasps_received}")
