@@ -23,6 +23,7 @@ help:
 	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
+	@echo "make symmetry-study - grasps copied to an object's symmetries, simulated against their originals"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - v2 training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 	@echo "make data-objects-v1 / data-scenes-v1 - the v1 dataset of the shipped models"
@@ -104,7 +105,7 @@ data-report: setup
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
-.PHONY: bench-datagen label-settings-study data-objects-v1 data-scenes-v1
+.PHONY: bench-datagen label-settings-study symmetry-study data-objects-v1 data-scenes-v1
 bench-datagen: setup
 	@$(ROS) ros2 run sim_bridge bench_datagen --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
 	  --workers $(WORKERS) --json out/bench_datagen.json
@@ -114,6 +115,12 @@ label-settings-study: setup
 	@$(ROS) ros2 run sim_bridge label_settings_study --tables models/grasp_tables_v1 \
 	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS)
 
+# Do grasps copied to an object's symmetries hold as the simulated ones do? (240 grasps x 3
+# simulations, ~40 min on 2 free cores)
+symmetry-study: setup
+	@$(ROS) ros2 run sim_bridge symmetry_study --tables models/grasp_tables_v2 \
+	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS) --out out/symmetry_study.json
+
 # Dataset v1 (the shipped models' data): free sampler, settled poses.
 data-objects-v1: setup
 	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --procedural 200 --sampler free \
@@ -121,7 +128,7 @@ data-objects-v1: setup
 
 data-scenes-v1: setup
 	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v1 --meshes ../shared/meshes/vgn_train \
-	  --scenes 1200 --seed 0 --out out/scenes_v1 --label-pose settled --workers $(WORKERS)
+	  --scenes 1200 --seed 0 --out out/scenes_v1 --label-pose settled --no-symmetry --workers $(WORKERS)
 
 # The shipped model and the benchmark's comparison models, all trained on out/scenes_v1
 # (make data-scenes). Each run resumes from out/training/<variant>/checkpoint.pt.

@@ -28,6 +28,7 @@ setup(
             "soak = sim_bridge.soak:main",
             "bench_datagen = sim_bridge.bench_datagen:main",
             "label_settings_study = sim_bridge.label_settings_study:main",
+            "symmetry_study = sim_bridge.symmetry_study:main",
         ],
     },
 )

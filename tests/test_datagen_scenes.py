@@ -11,12 +11,13 @@ import trimesh
 from sim_bridge import hand_collision
 from sim_bridge.antipodal_sampling import sample_grasp_candidates
 from sim_bridge.gravity_projection import gravity_rejection_score
-from sim_bridge.object_grasps import MODE_NAMES, load_table
+from sim_bridge.object_grasps import MODE_NAMES, load_table, object_from_table
 from sim_bridge.scene_dataset import run_scene_stage
 from sim_bridge.scenes import TABLE_HEIGHT_M
 from sim_bridge.voxel_labels import RESOLUTION, VOLUME_SIZE_M
 
 from test_datagen_objects import write_urdf
+from test_object_symmetry import surface_distance
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +64,14 @@ def scenes(grasp_data, tmp_path_factory):
 
 
 def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
-    total = 0
+    total, copies = 0, 0
+    symmetries = {p.stem: np.load(p)["transforms"] for p in (grasp_data / "objects" / "symmetry").glob("*.npz")}
+    for name, S in symmetries.items():  # every copy moves the surface onto itself
+        m = trimesh.load(grasp_data / "meshes" / f"{name}.obj")
+        pts = m.sample(500, seed=1)
+        assert len(S) > 1 and np.allclose(S[0], np.eye(4))
+        for X in S:
+            assert surface_distance(m, pts @ X[:3, :3].T + X[:3, 3]).max() < 0.002
     for p in sorted((scenes / "scenes").glob("*.npz")):
         z = dict(np.load(p))
         assert z["tsdf"].shape == (RESOLUTION,) * 3 and z["tsdf"].dtype == np.float32
@@ -71,20 +79,23 @@ def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
         assert 1 <= len(z["T_task_camera"]) <= 3 and str(z["arrangement"]) in ("packed", "pile")
         K = len(z["label_score"])
         total += K
+        copies += int((z["label_symmetry"] > 0).sum())
         assert K <= z["n_grasps_collision_free"] <= z["n_grasps_projected"]
         assert len(np.unique(z["label_index"], axis=0)) == K  # one label per voxel
         tables = [load_table(grasp_data / "objects" / "objects" / f"{n}.npz") for n in z["object_names"]]
         X_obj = z["X_task_object"].astype(np.float64)
         others = []
-        for k in range(len(tables)):
-            m = trimesh.load(grasp_data / "meshes" / f"{z['object_names'][k]}.obj")
+        for k in range(len(tables)):  # the object model the scene stage loads (URDF)
+            m = object_from_table(tables[k], [grasp_data / "meshes"]).collision_mesh()
             others.append(hand_collision.surface_points(m) @ X_obj[k, :3, :3].T + X_obj[k, :3, 3])
         for i in range(K):
             k, row = z["label_object"][i], z["label_grasp"][i]
             t = tables[k]
             assert t["grasped"][row] and z["label_mode"][i] == t["mode"][row] != 2
             assert str(z["label_pose"]) == "commanded"
-            X = X_obj[k] @ t["X_object_tcp_candidate"][row].astype(np.float64)
+            # a simulated grasp, or its copy at a symmetry of the object (object_symmetry)
+            S = symmetries[str(z["object_names"][k])][z["label_symmetry"][i]]
+            X = X_obj[k] @ S @ t["X_object_tcp_candidate"][row].astype(np.float64)
             # the label sits in the voxel of the grasp's TCP, with its axes
             np.testing.assert_array_equal(z["label_index"][i], np.floor(X[:3, 3] / (VOLUME_SIZE_M / RESOLUTION)))
             np.testing.assert_allclose(z["label_e_x"][i], X[:3, 0], atol=1e-5)
@@ -95,7 +106,7 @@ def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
             # (its own too: the commanded pose is where the open hand really goes)
             obst = np.concatenate(others)
             assert not hand_collision.collides(X, obst, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)[0]
-    assert total > 30
+    assert total > 30 and 0 < copies < total
 
 
 def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(grasp_data, scenes, tmp_path):
@@ -111,3 +122,16 @@ def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(gras
     assert sorted(a.files) == sorted(b.files)
     for key in a.files:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_without_symmetry_a_scene_has_just_the_simulated_grasps_labels(grasp_data, scenes, tmp_path):
+    s = run_scene_stage(tmp_path, grasp_data / "objects", [grasp_data / "meshes"], 1, seed=5, workers=1,
+                        max_objects=3, max_views=3, progress=False, symmetry=False)
+    assert s["done"] == 1 and s["error"] == 0
+    plain = np.load(tmp_path / "scenes" / "000000.npz")
+    copied = np.load(scenes / "scenes" / "000000.npz")
+    # the same scene (seeded), labelled from the simulated grasps only
+    np.testing.assert_array_equal(plain["tsdf"], copied["tsdf"])
+    assert not plain["label_symmetry"].any()
+    assert len(plain["label_score"]) == int(copied["n_labels_without_copies"]) == int(plain["n_labels_without_copies"])
+    assert len(copied["label_score"]) > len(plain["label_score"])

@@ -52,17 +52,22 @@ def collect(data_dir, scenes_dir=None):
     sdir = pathlib.Path(scenes_dir) if scenes_dir else pathlib.Path(data_dir) / "scenes"
     if (sdir / "scenes").is_dir():
         sdir = sdir / "scenes"
-    labels, fg, fg_mode, arrangements = [], [], [], []
+    labels, fg, fg_mode, arrangements, without_copies, copies = [], [], [], [], [], []
     for p in sorted(sdir.glob("*.npz")) if sdir.is_dir() else []:
         with np.load(p) as z:
             labels.append(len(z["label_score"]))
             fg.append(z["label_score"])
             fg_mode.append(z["label_mode"])
             arrangements.append(str(z["arrangement"]))
+            if "n_labels_without_copies" in z.files:  # scenes made with object symmetries
+                without_copies.append(int(z["n_labels_without_copies"]))
+                copies.append(int((z["label_symmetry"] > 0).sum()))
     stats["labels_per_scene"] = np.asarray(labels)
     stats["label_scores"] = np.concatenate(fg) if fg else np.zeros(0)
     stats["label_modes"] = np.concatenate(fg_mode) if fg_mode else np.zeros(0, np.uint8)
     stats["arrangements"] = arrangements
+    stats["labels_without_copies"] = np.asarray(without_copies)
+    stats["labels_from_copies"] = int(np.sum(copies))
     return stats
 
 
@@ -100,6 +105,10 @@ def report_text(s):
         if len(lf):
             lines.append(f"labels: {len(lf)}, power {100 * (lf == 0).mean():.1f}%; gravity-rejection score "
                          f"median {np.median(s['label_scores']):.1f} N")
+        w = s["labels_without_copies"]
+        if len(w) == len(n) and len(lf):
+            lines.append(f"symmetric copies: {100 * s['labels_from_copies'] / len(lf):.1f}% of labels; the simulated "
+                         f"grasps alone would give a median {np.median(w):.0f} labels per scene (mean {w.mean():.1f})")
     lines.append(f"objects={s['objects']}")
     lines.append(f"grasps={g}")
     lines.append(f"power_fraction={power_fraction:.4f}")

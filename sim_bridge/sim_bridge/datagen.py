@@ -209,6 +209,9 @@ def main(argv=None):
     sc.add_argument("--label-pose", choices=("commanded", "settled"), default="commanded",
                     help="hand pose a label carries: the one the robot commands (default) or the one after "
                          "the object settled in the hand (the v1 dataset)")
+    sc.add_argument("--no-symmetry", action="store_true",
+                    help="place only the simulated grasps (default: also their copies at each rotational "
+                         "symmetry of the object, which hold alike; see object_symmetry)")
 
     args = p.parse_args(argv)
     try:
@@ -244,7 +247,7 @@ def _run(p, args):
 
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
                         max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
-                        label_pose=args.label_pose)
+                        label_pose=args.label_pose, symmetry=not args.no_symmetry)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
 

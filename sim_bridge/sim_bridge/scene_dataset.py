@@ -12,6 +12,8 @@ For scene i (seed from --seed and i only):
    uses the pose the hand was driven to (X_object_tcp_candidate): the pose the
    robot will command, so labels and execution agree about the approach;
    "settled" uses the hand pose after the object settled in it (the v1 dataset);
+   with `symmetry` (default) every grasp is also placed at each rotational
+   symmetry of its object (object_symmetry: same contacts, same scores);
 4. drop a grasp if the open hand at that pose, or on its last `approach_m` of
    straight approach, intersects the table or another object (and, for
    commanded poses, the grasped object itself);
@@ -21,10 +23,12 @@ For scene i (seed from --seed and i only):
 Stored per scene in `<out>/scenes/<i:06d>.npz`: tsdf (40,40,40) float32 (network
 input convention of gravgrasp_detector.tsdf), label_index (K,3) uint8,
 label_score (K,) float32 [N], label_e_x / label_e_z (K,3) float32, label_mode (K,)
-uint8 (power/precision), label_object (K,) uint8 and label_grasp (K,) int32
-(provenance: row of that object's grasp table), the object names and poses,
+uint8 (power/precision), label_object (K,) uint8, label_grasp (K,) int32 and
+label_symmetry (K,) uint8 (provenance: row of that object's grasp table and the
+symmetry it was moved by, 0 = the simulated pose), the object names and poses,
 the arrangement, the camera poses and intrinsics, and the counts of projected
-and collision-free grasps.
+and collision-free grasps, and how many labels the simulated grasps alone give
+(n_labels_without_copies).
 """
 
 import hashlib
@@ -35,9 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from . import atomic_files, hand_collision
+from . import atomic_files, hand_collision, object_symmetry
 from .gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
-from .object_grasps import MODE_NAMES, load_table, object_from_table
+from .object_grasps import MODE_NAMES, load_table, object_from_table, shape_sha256
 from .parallel import make_executor, run_tasks, task_seed
 from .resting_poses import RestingPoses
 from .scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
@@ -60,6 +64,7 @@ class SceneTask:
     approach_m: float = APPROACH_M
     settings: SceneSettings = SceneSettings()
     label_pose: str = "commanded"   # | "settled"
+    symmetry: bool = True           # also place grasps at the object's symmetries
 
 
 def usable_tables(objects_dir):
@@ -115,43 +120,55 @@ def _run_scene(task):
     # project grasps, filter collisions, gravity projection
     meshes = [s.collision_mesh() for s in specs]
     points = [hand_collision.surface_points(m, seed=0) @ X[:3, :3].T + X[:3, 3] for m, X in zip(meshes, poses)]
-    X_all, f_all, mode_all, obj_all, row_all = [], [], [], [], []
+    X_all, f_all, mode_all, obj_all, row_all, sym_all = [], [], [], [], [], []
     n_projected = 0
     for k, (t, X_obj) in enumerate(zip(tables, poses)):
         rows = np.flatnonzero(t["grasped"])
         key = "X_object_tcp_candidate" if task.label_pose == "commanded" else "X_object_tcp"
-        X = X_obj[None] @ t[key][rows].astype(np.float64)
+        X = t[key][rows].astype(np.float64)
+        sym = np.zeros(len(rows), np.int64)
+        if task.symmetry:
+            S = object_symmetry.cached_symmetry_transforms(
+                pathlib.Path(task.objects_dir).parent / "symmetry", str(t["name"]),
+                str(t["shape_sha256"]) if "shape_sha256" in t else shape_sha256(specs[k]), meshes[k], specs[k].com_m)
+            X, src = object_symmetry.replicate(X, S)
+            rows, sym = rows[src], np.repeat(np.arange(len(S)), len(src) // len(S))
+        X = X_obj[None] @ X
         n_projected += len(rows)
         # the settled hand touches its object by definition; a commanded pose must clear it
         obstacles = [p for j, p in enumerate(points) if j != k or task.label_pose == "commanded"]
         others = np.concatenate(obstacles) if obstacles else None
         free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
-        X, rows = X[free], rows[free]
+        X, rows, sym = X[free], rows[free], sym[free]
         X_all.append(X)
         f_all.append(gravity_rejection_score(t["scores_n"][rows], X[:, :3, :3]) if len(rows) else np.zeros(0))
         mode_all.append(t["mode"][rows])
         obj_all.append(np.full(len(rows), k))
         row_all.append(rows)
+        sym_all.append(sym)
     cat = (lambda a, shape, dt: np.concatenate(a).astype(dt) if a else np.zeros(shape, dt))
     X_all = cat(X_all, (0, 4, 4), np.float64)
     f_all = cat(f_all, (0,), np.float64)
     labels = voxel_labels(X_all, f_all)
     g = labels["grasp"]
+    simulated = cat(sym_all, (0,), np.int64) == 0
+    n_without_copies = len(voxel_labels(X_all[simulated], f_all[simulated])["score"])
     return dict(
         tsdf=tsdf.grid(),
         label_index=labels["index"], label_score=labels["score"],
         label_e_x=labels["e_x"], label_e_z=labels["e_z"],
         label_mode=cat(mode_all, (0,), np.uint8)[g], label_object=cat(obj_all, (0,), np.uint8)[g],
-        label_grasp=cat(row_all, (0,), np.int32)[g],
+        label_grasp=cat(row_all, (0,), np.int32)[g], label_symmetry=cat(sym_all, (0,), np.uint8)[g],
         object_names=np.asarray([str(t["name"]) for t in tables] or [""])[:len(tables)],
         X_task_object=np.asarray(poses, np.float32).reshape(-1, 4, 4),
         arrangement=np.asarray(arrangement), n_objects_requested=np.asarray(n_req),
         T_task_camera=np.asarray(views, np.float32),
         intrinsics=np.asarray([IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX, intrinsics.cx, intrinsics.cy]),
         n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
+        n_labels_without_copies=np.asarray(n_without_copies),
         table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
         gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
-        label_pose=np.asarray(task.label_pose),
+        label_pose=np.asarray(task.label_pose), symmetry=np.asarray(task.symmetry),
         mode_names=np.asarray(MODE_NAMES), seed=np.asarray(task_seed(task.master_seed, "scene", task.index), np.uint64),
     )
 
@@ -186,7 +203,7 @@ class SceneStore:
 
 def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
                     max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings(),
-                    label_pose="commanded"):
+                    label_pose="commanded", symmetry=True):
     """Generate scenes 0..n_scenes-1 that do not exist yet; returns a summary dict."""
     objects_dir = pathlib.Path(objects_out_dir) / "objects"
     names = tuple(usable_tables(objects_dir))
@@ -199,6 +216,7 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     if label_pose not in ("commanded", "settled"):
         raise ValueError(f"label_pose {label_pose!r}: use 'commanded' or 'settled'")
     manifest = dict(seed=seed, max_objects=max_objects, max_views=max_views, label_pose=label_pose,
+                    symmetry=bool(symmetry),
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names))
@@ -212,7 +230,7 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     else:
         atomic_files.save_json(mpath, manifest)
     tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
-                       settings=settings, label_pose=label_pose)
+                       settings=settings, label_pose=label_pose, symmetry=bool(symmetry))
              for i in range(n_scenes) if not store.path(i).exists()]
     errors = []
 

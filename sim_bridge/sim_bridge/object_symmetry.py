@@ -1,0 +1,127 @@
+"""Rotational symmetries of an object: labels that need no simulation.
+
+If a rotation S about the object's centre of mass maps its surface onto itself
+(a can about its axis, a box by half turns), the hand at S X_object_tcp meets
+the same surface, with the same mass distribution, as at X_object_tcp: the grasp
+holds or fails alike and its six disturbance-rejection scores, which live in the
+TCP frame, are the same.  So every simulated grasp of a symmetric object gives
+one grasp per symmetry for free; the scene stage places all of them
+(`scene_dataset`), and `symmetry_study` checks the claim by simulating copies.
+
+Candidate rotations are k/n turns (n = 2, 3, 4, 6, 12) about the object's
+principal inertia axes, its oriented-bounding-box axes (square-section boxes have
+no unique inertia axes; skipped for hulls of > 1000 faces) and frame axes, and
+products of accepted ones.  A candidate is accepted only if surface points moved
+by it stay on the surface: 99 % within `tol_m` and all within 3 `tol_m` (so a
+tessellated can passes a 30 degree turn, a mug with a handle does not).  The
+result is a finite group, identity first, capped at `max_elements`.
+"""
+
+import numpy as np
+import trimesh
+
+TOL_M = 0.001
+TURNS = (2, 3, 4, 6, 12)
+MAX_ELEMENTS = 24
+N_POINTS = 1500
+
+
+def _about(axis, angle, centre):
+    X = np.eye(4)
+    X[:3, :3] = trimesh.transformations.rotation_matrix(angle, axis)[:3, :3]
+    X[:3, 3] = centre - X[:3, :3] @ centre
+    return X
+
+
+def _candidate_axes(mesh):
+    axes = list(np.asarray(mesh.principal_inertia_vectors, float))
+    if len(mesh.convex_hull.faces) <= 1000:  # OBB search is slow on round hulls; they have inertia axes
+        axes += list(np.asarray(mesh.bounding_box_oriented.primitive.transform, float)[:3, :3].T)
+    axes += list(np.eye(3))
+    out = []
+    for a in axes:
+        a = a / np.linalg.norm(a)
+        if all(abs(a @ b) < 0.999 for b in out):
+            out.append(a)
+    return out
+
+
+class _SurfaceCheck:
+    """Does a rigid motion keep the mesh surface on itself?"""
+
+    def __init__(self, mesh, tol_m, n_points, seed):
+        import open3d as o3d
+
+        self.points, _ = trimesh.sample.sample_surface(mesh, n_points, seed=seed)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+                                 o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+        self.tol_m = tol_m
+
+    def keeps(self, X):
+        import open3d as o3d
+
+        moved = self.points @ X[:3, :3].T + X[:3, 3]
+        d = self.scene.compute_distance(o3d.core.Tensor(moved.astype(np.float32))).numpy()
+        return bool(np.quantile(d, 0.99) <= self.tol_m and d.max() <= 3 * self.tol_m)
+
+
+def _same(A, B):
+    return np.abs(A - B).max() < 1e-6
+
+
+def symmetry_transforms(mesh, com_m, tol_m=TOL_M, max_elements=MAX_ELEMENTS, n_points=N_POINTS, seed=0):
+    """(S, 4, 4) object-frame rigid motions about `com_m` that map `mesh` onto itself,
+    the identity first (S = 1: no symmetry found).  Deterministic for a given seed."""
+    mesh = mesh if isinstance(mesh, trimesh.Trimesh) else trimesh.util.concatenate(mesh)
+    com = np.asarray(com_m, float)
+    check = _SurfaceCheck(mesh, tol_m, n_points, seed)
+    group = [np.eye(4)]
+
+    def add(X):
+        if len(group) < max_elements and not any(_same(X, G) for G in group) and check.keeps(X):
+            group.append(X)
+            return True
+        return False
+
+    for axis in _candidate_axes(mesh):
+        for n in TURNS:
+            # a k/n turn passes only if the 1/n turn does (its powers are in the group)
+            if add(_about(axis, 2 * np.pi / n, com)):
+                for k in range(2, n):
+                    add(_about(axis, 2 * np.pi * k / n, com))
+    # close under products (a can: turns about its axis times the end-over-end half turn)
+    grew = True
+    while grew and len(group) < max_elements:
+        grew = False
+        for A in list(group):
+            for B in list(group):
+                if add(A @ B):
+                    grew = True
+    return np.asarray(group)
+
+
+def replicate(X_object_tcp, transforms):
+    """(S*N, 4, 4) grasp poses S_s X_object_tcp_i (s-major) and (S*N,) index i of the source grasp."""
+    X = np.asarray(X_object_tcp, float).reshape(-1, 4, 4)
+    T = np.asarray(transforms, float).reshape(-1, 4, 4)
+    out = np.einsum("sij,njk->snik", T, X).reshape(-1, 4, 4)
+    return out, np.tile(np.arange(len(X)), len(T))
+
+
+def cached_symmetry_transforms(cache_dir, name, shape_sha256, mesh, com_m, tol_m=TOL_M):
+    """symmetry_transforms, kept in `<cache_dir>/<name>.npz` next to the grasp tables
+    (recomputed when the object's shape fingerprint or the tolerance changed)."""
+    import pathlib
+
+    from . import atomic_files
+
+    path = pathlib.Path(cache_dir) / f"{name}.npz"
+    if path.exists():
+        with np.load(path) as z:
+            if str(z["shape_sha256"]) == shape_sha256 and float(z["tol_m"]) == tol_m:
+                return z["transforms"]
+    T = symmetry_transforms(mesh, com_m, tol_m)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_files.save_npz(path, transforms=T, shape_sha256=np.asarray(shape_sha256), tol_m=np.asarray(tol_m))
+    return T
