@@ -65,9 +65,10 @@ def resolve_precision(precision):
 
 
 def _prepare(model, precision):
-    # channels_last_3d routes every conv to oneDNN, in fp32 too (contiguous fp32 3-D
-    # convs fall back to PyTorch's slow_conv3d here), and avoids layout reorders.
-    layout = torch.channels_last_3d
+    # bf16 (autocast): channels_last_3d routes every conv to oneDNN and avoids layout
+    # reorders. fp32 convs go to oneDNN in either layout (networks._conv3d), and the
+    # contiguous one was ~8 % faster on an AVX2 EPYC (19.8-21.1 vs 22.1-23.6 ms CPU).
+    layout = torch.channels_last_3d if precision == "bf16" else torch.contiguous_format
     if getattr(model, "_gravgrasp_layout", None) != layout:
         model.to(memory_format=layout)
         model._gravgrasp_layout = layout
@@ -178,9 +179,17 @@ def surface_voxels_in_closing_region(grid, poses_grid, voxel_size_m):
         return np.zeros(len(poses), int)
     centres = ((idx + 0.5) * voxel_size_m).astype(np.float32)
     lo, hi = CLOSING_REGION_TCP.astype(np.float32)
-    # all poses at once, in the TCP frames: q[n, m] = R_n^T (c_m - t_n)
-    q = np.matmul(centres[None] - poses[:, None, :3, 3], poses[:, :3, :3])
-    return ((q >= lo) & (q <= hi)).all(axis=2).sum(axis=1)
+    # all poses at once, in the TCP frames: q[j, n, m] = (R_n^T (c_m - t_n))_j, as one
+    # (3N, 3) x (3, M) product, then the box test axis by axis on contiguous rows (a
+    # stacked matmul of 3x3s and an .all() over the short last axis took ~10x longer)
+    R = poses[:, :3, :3]
+    n = len(poses)
+    q = (R.transpose(2, 0, 1).reshape(3 * n, 3) @ centres.T).reshape(3, n, -1)
+    q -= np.einsum("ni,nij->jn", poses[:, :3, 3], R)[:, :, None]
+    inside = (q[0] >= lo[0]) & (q[0] <= hi[0])
+    for j in (1, 2):
+        inside &= (q[j] >= lo[j]) & (q[j] <= hi[j])
+    return inside.sum(axis=1)
 
 
 def cube_max(volume, radius):

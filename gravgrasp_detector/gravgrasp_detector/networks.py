@@ -91,8 +91,12 @@ class GraspNet(nn.Module):
         x = F.relu(_run(self.dec1, x))
         x = F.interpolate(x, size=r // 4)
         x = F.relu(_run(self.dec2, x))
-        x = F.interpolate(x, size=r // 2)
-        return F.relu(_run(self.dec3, x))
+        if torch.is_grad_enabled():  # training: the plain form, autograd through dec3's weights
+            return F.relu(_run(self.dec3, F.interpolate(x, size=r // 2)))
+        # Inference: dec3 reads a nearest 2x upsampling, so its 5^3 conv equals a 3^3 conv
+        # on the coarse grid with 8x the outputs, then a parity shuffle (as the score head
+        # below): 4.6x fewer MACs in what was ~60 % of the network's CPU time.
+        return F.relu(_polyphase_conv(x, self.dec3, self._polyphase(self.dec3)))
 
     def score_and_validness_from_half(self, half):
         """score_and_validness(features) computed from half_features, ~4.6x fewer MACs.
@@ -103,12 +107,7 @@ class GraspNet(nn.Module):
         16 -> 2x8 conv then a parity shuffle gives the same numbers.
         """
         conv = self.head_score_validness
-        w = self._polyphase_head()  # (O*8, C, 3, 3, 3)
-        y = _conv3d(half, w.to(half.dtype), conv.bias.repeat_interleave(8).to(half.dtype), padding=1)
-        b, n = y.shape[0], y.shape[2]
-        out_channels = conv.weight.shape[0]
-        y = y.reshape(b, out_channels, 2, 2, 2, n, n, n).permute(0, 1, 5, 2, 6, 3, 7, 4)
-        out = y.reshape(b, out_channels, 2 * n, 2 * n, 2 * n)
+        out = _polyphase_conv(half, conv, self._polyphase(conv))
         return F.softplus(out[:, 0].float()) * self.score_scale_n, out[:, 1].float()
 
     def score_and_validness(self, features):
@@ -130,15 +129,16 @@ class GraspNet(nn.Module):
         """
         return _conv_at(self.head_rotation, features, index, half)
 
-    def _polyphase_head(self):
-        """Polyphase weights of the score/validness head, cached until the weights change."""
-        weight = self.head_score_validness.weight
+    def _polyphase(self, conv):
+        """Polyphase weights of a 5^3 `conv` (see _polyphase_weights), cached until its weights change."""
+        weight = conv.weight
         key = (weight.data_ptr(), weight._version, weight.dtype)
-        cached = getattr(self, "_polyphase_cache", None)
+        caches = self.__dict__.setdefault("_polyphase_caches", {})
+        cached = caches.get(id(conv))
         if cached is None or cached[0] != key:
             with torch.no_grad(), torch.autocast("cpu", enabled=False):  # exact float32 sums
                 cached = (key, _polyphase_weights(weight.detach().float()))
-            self._polyphase_cache = cached
+            caches[id(conv)] = cached
         return cached[1]
 
     def forward(self, x):
@@ -158,6 +158,16 @@ def _rows(features, flat):
     if features.is_contiguous():
         return features.reshape(channels, -1)[:, flat].movedim(0, -1)
     return features.permute(1, 2, 3, 0).reshape(-1, channels)[flat]
+
+
+def _polyphase_conv(coarse, conv, weight):
+    """`conv` (5^3, stride 1, padding 2) on the nearest 2x upsampling of `coarse` (B, C, n, n, n),
+    computed on the coarse grid with its polyphase `weight`: (B, O, 2n, 2n, 2n)."""
+    y = _conv3d(coarse, weight.to(coarse.dtype), conv.bias.repeat_interleave(8).to(coarse.dtype), padding=1)
+    b, n = y.shape[0], y.shape[2]
+    out_channels = conv.weight.shape[0]
+    y = y.reshape(b, out_channels, 2, 2, 2, n, n, n).permute(0, 1, 5, 2, 6, 3, 7, 4)
+    return y.reshape(b, out_channels, 2 * n, 2 * n, 2 * n)
 
 
 def _polyphase_weights(weight):

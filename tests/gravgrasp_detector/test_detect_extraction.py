@@ -149,6 +149,28 @@ def test_polyphase_head_on_half_features_equals_dense_head():
     torch.testing.assert_close(rot_half, rot_full, atol=1e-5, rtol=1e-4)
 
 
+def test_polyphase_dec3_at_inference_equals_the_conv_on_the_upsampled_grid():
+    """Inference runs dec3 (5^3 on a nearest 2x upsampling) as a 3^3 polyphase conv on
+    the coarse grid; training runs the plain conv. Same features, in both layouts."""
+    torch.manual_seed(2)
+    net = networks.GraspNet().eval()
+    x = torch.rand(1, 1, R, R, R)
+    with torch.enable_grad():
+        plain = net.half_features(x).detach()
+    for layout in (torch.contiguous_format, torch.channels_last_3d):
+        net.to(memory_format=layout)
+        with torch.inference_mode():
+            fast = net.half_features(x.contiguous(memory_format=layout))
+        torch.testing.assert_close(fast, plain, atol=1e-5, rtol=1e-4)
+    # the cached polyphase weights follow a weight update
+    with torch.no_grad():
+        net.dec3.weight.mul_(2.0)
+    with torch.enable_grad():
+        plain = net.half_features(x).detach()
+    with torch.inference_mode():
+        torch.testing.assert_close(net.half_features(x), plain, atol=1e-5, rtol=1e-4)
+
+
 def test_detect_grasps_fp32_matches_dense_forward():
     torch.manual_seed(1)
     net = networks.GraspNet("ex-ez").eval()

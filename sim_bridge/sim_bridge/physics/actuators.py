@@ -8,6 +8,8 @@ Both take their torque limit from `driver_torque_nm` (the squeeze calibration).
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
@@ -66,8 +68,11 @@ class FingerServoSystem(LeafSystem):
         self._state = self.DeclareVectorInputPort("state", plant.num_multibody_states())
         self._ref = self.DeclareDiscreteState(1)
         self._params = self.DeclareNumericParameter(BasicVector([0.0, 1.0, 1.0]))
-        self.DeclarePeriodicDiscreteUpdateEvent(time_step_s, 0.0, self._update)
-        self.DeclareVectorOutputPort("actuation", 2, self._calc)
+        # Callbacks through a weak reference: a bound method held by the C++ side would
+        # keep this object (and the C++ system it owns once its diagram is gone) alive.
+        me = weakref.ref(self)
+        self.DeclarePeriodicDiscreteUpdateEvent(time_step_s, 0.0, lambda c, s: me()._update(c, s))
+        self.DeclareVectorOutputPort("actuation", 2, lambda c, out: me()._calc(c, out))
 
     def set_command(self, context, target_rad, rate_rad_s, torque_limit_nm):
         context.get_mutable_numeric_parameter(self._params).SetFromVector(

@@ -159,7 +159,7 @@ class SimNode(Node):
         # A frame costs ~0.1 s of CPU that the physics then lacks: render only for a
         # subscriber, and only after the scene moved (else republish the last frame).
         want_depth = self.pub_depth.get_subscription_count() > 0
-        key = (self.world.scene_generation, round(self.world.time_s, 4))
+        key = (self.world.scenes_loaded, round(self.world.time_s, 4))
         if want_depth and key != self._render_key:
             self._depth = self.world.render_depth()
             self._render_key = key

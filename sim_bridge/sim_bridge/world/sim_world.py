@@ -38,6 +38,7 @@ step the world while other threads command it and read from it.
 
 from __future__ import annotations
 
+import gc
 import pathlib
 import threading
 from dataclasses import dataclass
@@ -102,7 +103,7 @@ class SimWorld:
         self._finger_command = None
         self._stall_since_s = self._blocked_angle = None
         self._motion = None
-        self.scene_generation = 0  # how many scenes were loaded (reset)
+        self.scenes_loaded = 0  # how many scenes were loaded (reset)
         self.reset(scene_config or SceneConfig())
 
     # -- scene ------------------------------------------------------------------------
@@ -116,8 +117,9 @@ class SimWorld:
         with self.lock:
             if self._motion is not None and not self._motion.done.is_set():
                 self._motion.finish(False, "interrupted: the scene was reloaded")
+            old = getattr(self, "_model", None)
             self._model = build_world_diagram(named, self.settings)
-            self.scene_generation += 1  # a new diagram: what was rendered or cached is stale
+            self.scenes_loaded += 1  # a new diagram: what was rendered or cached is stale
             self.scene_config = scene_config
             self.names = [n for n, _ in named]
             self._specs = {n: spec for n, spec in named}
@@ -143,7 +145,13 @@ class SimWorld:
                                             driver_torque_nm(self.settings.contact.grip_force_n))
             self.simulator.Initialize()
             self._advance_locked(self.settings.settle_time_s)
-            return list(self.names)
+            names = list(self.names)
+        if old is not None:  # free the previous scene's diagram now (see WorldDiagram.release)
+            old.release()
+            del old
+            gc.collect()
+            _return_freed_memory()
+        return names
 
     def _draw_scene(self, cfg: SceneConfig):
         if cfg.objects:
@@ -651,6 +659,19 @@ def _shape_mesh(shape):
         m.apply_scale(shape.scale3())
         return m.convex_hull if isinstance(shape, Convex) else m
     return None
+
+
+def _return_freed_memory():
+    """Hand freed heap pages back to the OS (glibc malloc_trim; elsewhere nothing). A
+    scene is ~15 MB of small allocations, and the sim node reloads it from whichever
+    executor thread serves load_scene: each thread's malloc arena kept its freed scene,
+    +75 MB over 4 reloads in a 10 min soak, until trimmed."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _cross(a, b):
