@@ -3,11 +3,17 @@
 Before the fix every reset left its whole Drake diagram behind (pydrake never freed a
 diagram holding a Python LeafSystem): +15-19 MB of RSS per reset, +33 % over a 10 min
 soak; freed, it still stayed in the malloc arena of the thread that reloaded. Measured
-here in-process, as the sim node does it: reset on a new thread, render a frame, step.
+as the sim node does it (reset on a new thread, render a frame, step), in a fresh
+interpreter: inside the test run's process the heap of 300 earlier tests made the RSS
+figure drift by tens of MB with no diagram kept.
 """
 import ctypes
 import gc
+import json
+import os
 import pathlib
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -53,7 +59,9 @@ def reload(world, seed):
     thread.join()
 
 
-def test_repeated_scene_reloads_free_the_previous_world():
+def measure():
+    """In this (fresh) process: RSS after each measured reload, diagrams alive before and
+    after, and whether the world in use still closes its fingers; one JSON line."""
     world = SimWorld(SceneConfig(seed=1, n_objects=3), WorldSettings())
     diagrams_before = live_diagrams()
     for i in range(WARM_UP_RESETS):
@@ -62,16 +70,7 @@ def test_repeated_scene_reloads_free_the_previous_world():
     for i in range(MEASURED_RESETS):
         reload(world, seed=1 + i % 2)
         rss.append(rss_mb())
-    growth_mb = sum(rss[-3:]) / 3 - sum(rss[:3]) / 3
-    print(f"rss_mb={[round(v, 1) for v in rss]} growth_mb={growth_mb:.1f}")
-
-    # every replaced diagram is gone: the same number alive as before the resets
-    assert live_diagrams() == diagrams_before
-    assert growth_mb < MAX_RSS_GROWTH_MB, (
-        f"RSS after each of {MEASURED_RESETS} scene reloads {[round(v) for v in rss]} MB: grew "
-        f"{growth_mb:.1f} MB in 3 reloads; the previous worlds are kept alive")
-
-    # the world in use still works after its predecessors were freed: fingers close
+    diagrams_after = live_diagrams()
     plant = SimFingerPlant(world)
     width = world.finger_width_m()
     for _ in range(200):
@@ -79,4 +78,26 @@ def test_repeated_scene_reloads_free_the_previous_world():
         width = reading.width_m
         if reading.current_a == 0.0:
             break
-    assert reading.current_a == 0.0 and width < 0.005, reading
+    print(json.dumps(dict(rss=rss, diagrams_before=diagrams_before, diagrams_after=diagrams_after,
+                          closed=bool(reading.current_a == 0.0 and width < 0.005), reading=str(reading))))
+
+
+def test_repeated_scene_reloads_free_the_previous_world():
+    run = subprocess.run([sys.executable, __file__], capture_output=True, text=True, timeout=280, env=os.environ)
+    assert run.returncode == 0, run.stderr[-3000:]
+    r = json.loads(run.stdout.strip().splitlines()[-1])
+    rss = r["rss"]
+    growth_mb = sum(rss[-3:]) / 3 - sum(rss[:3]) / 3
+    print(f"rss_mb={[round(v, 1) for v in rss]} growth_mb={growth_mb:.1f}")
+
+    # every replaced diagram is gone: the same number alive as before the resets
+    assert r["diagrams_after"] == r["diagrams_before"]
+    assert growth_mb < MAX_RSS_GROWTH_MB, (
+        f"RSS after each of {MEASURED_RESETS} scene reloads {[round(v) for v in rss]} MB: grew "
+        f"{growth_mb:.1f} MB in 3 reloads; the previous worlds are kept alive")
+    # the world in use still works after its predecessors were freed: fingers close
+    assert r["closed"], r["reading"]
+
+
+if __name__ == "__main__":
+    measure()
