@@ -38,7 +38,7 @@ class StudyTask:
     table_path: str
     mesh_dirs: tuple
     rows: tuple
-    poses: tuple        # per row: (original, symmetric copy, control), each a 4x4 nested tuple
+    poses: np.ndarray   # (rows, 3, 4, 4): original, symmetric copy, 1 mm control
 
 
 def run_study_task(task: StudyTask):
@@ -53,7 +53,7 @@ def run_study_task(task: StudyTask):
     for r, poses in zip(task.rows, task.poses):
         res = []
         for X in poses:
-            o = sim.evaluate(np.asarray(X, float))
+            o = sim.evaluate(X)
             res.append((bool(o.grasped), np.asarray(o.scores_n, float)))
         out.append((r, res))
     return out
@@ -96,13 +96,9 @@ def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed):
             shift = r.normal(size=3)
             C = X.copy()
             C[:3, 3] += CONTROL_SHIFT_M * shift / np.linalg.norm(shift)
-            poses.append(tuple(map(_nested, (X, S[r.integers(1, len(S))] @ X, C))))
-        chosen.append((str(p), tuple(int(x) for x in rows), tuple(poses)))
+            poses.append((X, S[r.integers(1, len(S))] @ X, C))
+        chosen.append((str(p), tuple(int(x) for x in rows), np.asarray(poses)))
     return chosen
-
-
-def _nested(X):
-    return tuple(tuple(float(v) for v in row) for row in X)
 
 
 def main(argv=None):
@@ -131,7 +127,8 @@ def main(argv=None):
         run_tasks(ex, run_study_task, tasks, on_result, desc="symmetry study")
 
     keys = [(path, r) for path, rows, _ in chosen for r in rows]
-    cap = min(float(json.loads(str(load_table(path)["sim_settings"]))["max_force_n"]) for path, _, _ in chosen)
+    tables = {path: load_table(path) for path, _, _ in chosen}
+    cap = min(float(json.loads(str(t["sim_settings"]))["max_force_n"]) for t in tables.values())
     held = np.array([[res[i][0] for i in range(3)] for res in (results[k] for k in keys)])
     scores = [np.array([results[k][i][1] for k in keys]) for i in range(3)]
     gravity = gravity_directions_tcp(len(keys), np.random.default_rng(args.seed))
@@ -148,7 +145,7 @@ def main(argv=None):
         print(f"{name}: held {100 * c['held_when_original_held']:.0f} % where the original held; "
               f"Spearman f_g {c['spearman_f_g']:.3f}, weakest {c['spearman_weakest']:.3f}; "
               f"MAE per direction {c['mae_per_direction_n']} N, f_g MAE {c['mae_f_g_n']:.2f} N")
-    kind = np.array([str(load_table(pth)["source_kind"]) for pth, _ in keys])
+    kind = np.array([str(tables[pth]["source_kind"]) for pth, _ in keys])
     for k in ("procedural", "mesh"):  # exact primitives in Drake vs tessellated, near-symmetric meshes
         sel = both & (kind == k)
         if sel.sum() >= 3:
