@@ -192,13 +192,19 @@ class Robotiq2F85:
         self.write_command(command)
         return command.position
 
-    def wait(self, timeout_s: float, requested: int | None = None, poll_s: float = 0.01) -> GripperState:
+    def wait(self, timeout_s: float, requested: int | None = None, poll_s: float = 0.01,
+             echo_timeout_s: float = 0.5) -> GripperState:
         """Poll until the current motion ends (gOBJ != 0) and return the final state.
 
         ``requested``: counts returned by ``move``; until gPR echoes them the gripper
-        has not taken the command yet, and an old gOBJ must not end the wait.
+        has not taken the command yet, and an old gOBJ must not end the wait. The
+        gripper echoes a command at once; one not echoed within ``echo_timeout_s`` was
+        lost on the line (its acknowledgement was another request's late answer), so
+        it is written again: a command is a register state, repeating it is harmless.
         """
-        deadline = time.monotonic() + timeout_s
+        start = resent = time.monotonic()
+        deadline = start + timeout_s
+        resends = 0
         while True:
             state = self.read_state()
             if state.fault and state.fault != FAULT_ACTION_DELAYED:
@@ -206,11 +212,17 @@ class Robotiq2F85:
             taken = requested is None or state.requested == requested
             if state.go and taken and state.object_status != ObjectStatus.MOVING:
                 return state
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > deadline:
+                lost = "" if taken else f"; the command was sent {resends + 1} times and never taken"
                 raise GripperTimeout(
                     f"motion not finished after {timeout_s} s (position {state.position} counts, "
-                    f"requested {state.requested}, gOBJ = {int(state.object_status)})"
+                    f"requested {state.requested}, gOBJ = {int(state.object_status)}{lost})"
                 )
+            if not taken and state.ready and now - resent > echo_timeout_s \
+                    and self._last_command.position == requested:
+                self.write_command(self._last_command)
+                resent, resends = time.monotonic(), resends + 1
             time.sleep(poll_s)
 
     def move_and_wait(self, width_m: float, speed_mps: float, force_n: float, timeout_s: float) -> GripperState:

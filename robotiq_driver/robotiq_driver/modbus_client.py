@@ -12,6 +12,14 @@ needs from it:
   ``ModbusTimeout`` says what to check;
 - an exception response is not retried (asking again gives the same answer):
   ``ModbusExceptionResponse`` carries the code and its meaning;
+- an answer must be the answer to this request: its function code, and for a write
+  the echoed address and count, for a read the register count. pymodbus does not
+  match answers to requests on a serial line, so a late answer to an earlier request
+  (the device was slow, the client retried, the spare answer arrived after the next
+  request went out) would otherwise pass for this one: a read would return the wrong
+  registers, a write would look applied although the device never saw it. Such an
+  answer is discarded and the request sent again (reads and register writes can be
+  repeated), within the same attempts;
 - a port that fails on write or read (unplugged USB adapter: EIO) is closed and
   reopened by path within the same call's attempts, so a replugged adapter that comes
   back under the same path (/dev/serial/by-id/...) is picked up without a restart; if
@@ -162,8 +170,9 @@ class ModbusRtuClient:
         response = self._execute(
             slave, READ_HOLDING_REGISTERS,
             lambda: self.client.read_holding_registers(address, count=count, device_id=slave),
+            lambda r: len(r.registers) == count,
         )
-        return self._registers(response, slave, count)
+        return tuple(response.registers)
 
     def read_input_registers(self, slave: int, address: int, count: int) -> tuple[int, ...]:
         _check_slave(slave)
@@ -171,8 +180,9 @@ class ModbusRtuClient:
         response = self._execute(
             slave, READ_INPUT_REGISTERS,
             lambda: self.client.read_input_registers(address, count=count, device_id=slave),
+            lambda r: len(r.registers) == count,
         )
-        return self._registers(response, slave, count)
+        return tuple(response.registers)
 
     def write_registers(self, slave: int, address: int, values) -> None:
         _check_slave(slave)
@@ -187,12 +197,17 @@ class ModbusRtuClient:
             lambda: self.client.write_registers(
                 address, values, device_id=slave, no_response_expected=broadcast
             ),
+            lambda r: (r.address, r.count) == (address, len(values)),
         )
 
-    def _execute(self, slave: int, function: int, call):
+    def _execute(self, slave: int, function: int, call, answers):
+        """``answers(response)``: whether a response of ``function`` fits this request."""
         attempts = self.retries + 1
         port_error: Exception | None = None
-        for _ in range(attempts):  # port failures; pymodbus retries lost answers itself
+        stale = None
+        # Attempts cover port failures and answers to other requests; pymodbus retries
+        # lost answers itself.
+        for _ in range(attempts):
             try:
                 response = call()
             except ConnectionException as error:
@@ -215,10 +230,23 @@ class ModbusRtuClient:
                 self.transactions += 1
                 return None
             self.failed_attempts += getattr(response, "retries", 0)
+            if (response.function_code & 0x7F) != function or not (response.isError() or answers(response)):
+                # Another request's late answer; this request's own may still come, and
+                # pymodbus drops what is waiting before it sends again.
+                self.failed_attempts += 1
+                stale = response
+                continue
             if response.isError():
                 raise ModbusExceptionResponse(slave, function, getattr(response, "exception_code", 0))
             self.transactions += 1
             return response
+        if stale is not None and port_error is None:
+            raise ModbusFrameError(
+                f"slave {slave} on {self.port} kept giving answers that do not fit the request "
+                f"(function 0x{function:02X}; last answer: function 0x{stale.function_code:02X}, "
+                f"{self._describe(stale)}) in {attempts} attempt{'s' if attempts > 1 else ''}: "
+                "is another master on the line, or a second program on the port?"
+            )
         raise ModbusConnectionError(
             f"serial port {self.port} failed and could not be reopened "
             f"({attempts} attempt{'s' if attempts > 1 else ''}): "
@@ -227,8 +255,9 @@ class ModbusRtuClient:
         )
 
     @staticmethod
-    def _registers(response, slave: int, count: int) -> tuple[int, ...]:
-        registers = tuple(response.registers)
-        if len(registers) != count:
-            raise ModbusFrameError(f"slave {slave} answered {len(registers)} registers, expected {count}")
-        return registers
+    def _describe(response) -> str:
+        if response.isError():
+            return f"exception 0x{getattr(response, 'exception_code', 0):02X}"
+        if response.function_code == WRITE_MULTIPLE_REGISTERS:
+            return f"write echo of {response.count} registers at 0x{response.address:04X}"
+        return f"{len(response.registers)} registers"

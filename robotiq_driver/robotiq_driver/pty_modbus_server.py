@@ -22,7 +22,10 @@ As a Modbus slave does, the server stays silent on frames for other slave addres
 and on frames with a bad CRC, and executes broadcast (address 0) writes without
 answering. For testing clients, the relay can emulate a gripper that stopped answering
 (``respond = False``), a noisy line (``corrupt_responses = n``: the next n answers
-reach the client with a flipped CRC byte) and an unplugged cable (``unplug()`` closes
+reach the client with a flipped CRC byte), a loaded line where answers and requests
+cross (``lose_requests = n``: the next n requests never reach the device;
+``late_answers``: frames handed to the client right after its next request, as a
+slow device's spare answer to an earlier retried request arrives) and an unplugged cable (``unplug()`` closes
 the client's pty and removes the link; ``replug()`` brings a new pty back at the same
 link, as a USB adapter re-enumerating under /dev/serial/by-id does).
 """
@@ -72,6 +75,8 @@ class PtyModbusServer:
         self.register_blocks = register_blocks
         self.respond = True
         self.corrupt_responses = 0
+        self.lose_requests = 0
+        self.late_answers: list[bytes] = []
         self.requests_served = 0  # requests for this slave (or broadcast) pymodbus decoded
         self._client_master = self._client_slave = None
         self._server_master = self._server_slave = None
@@ -266,8 +271,12 @@ class PtyModbusServer:
             if client is not None and client in ready:
                 with self._fd_lock:
                     data = self._read(client) if self._client_master == client else b""
-                if data:
+                if data and self.lose_requests > 0:
+                    self.lose_requests -= 1
+                elif data:
                     os.write(server, data)
+                if data and self.late_answers:
+                    self._to_client(self.late_answers.pop(0))
             if server in ready:
                 data = self._read(server)
                 if not data or not self.respond:
@@ -275,12 +284,15 @@ class PtyModbusServer:
                 if self.corrupt_responses > 0:
                     self.corrupt_responses -= 1
                     data = data[:-1] + bytes([data[-1] ^ 0xFF])
-                with self._fd_lock:
-                    if self._client_master is not None:
-                        try:
-                            os.write(self._client_master, data)
-                        except OSError:
-                            pass
+                self._to_client(data)
+
+    def _to_client(self, data: bytes) -> None:
+        with self._fd_lock:
+            if self._client_master is not None:
+                try:
+                    os.write(self._client_master, data)
+                except OSError:
+                    pass
 
     @staticmethod
     def _read(fd: int) -> bytes:

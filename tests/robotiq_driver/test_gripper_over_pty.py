@@ -12,6 +12,7 @@ from robotiq_driver.gripper_client import (
     GripperFault,
     GripperLinkError,
     GripperNotReady,
+    GripperTimeout,
     Robotiq2F85,
 )
 from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
@@ -51,6 +52,23 @@ def test_activate_then_close_on_an_object_over_the_wire(gripper, emulator):
     final = gripper.move_and_wait(0.060, speed_mps=0.150, force_n=40.0, timeout_s=3.0)
     assert final.object_status == ObjectStatus.AT_POSITION
     assert gripper.width_m(final) == pytest.approx(0.060, abs=0.085 / 255)
+
+
+def test_a_command_lost_on_the_line_is_sent_again(server, gripper, emulator):
+    # The close is lost, and a spare write echo from an earlier retried request (same
+    # address and count, so nothing tells it apart) arrives as its acknowledgement:
+    # only gPR, which never echoes the request, shows the gripper did not take it.
+    gripper.activate(timeout_s=3.0)
+    server.lose_requests = 1
+    server.late_answers.append(bytes.fromhex("09 10 03 E8 00 03 01 30"))
+    start = time.monotonic()
+    final = gripper.move_and_wait(0.0, speed_mps=0.150, force_n=40.0, timeout_s=3.0)
+    assert final.requested == 255 and final.object_status == ObjectStatus.CONTACT_CLOSING
+    assert time.monotonic() - start < 0.5 + 0.045 / 0.150 + 1.0
+    # Never taken (a device that acknowledges and ignores): the timeout says so.
+    emulator.write_registers = lambda address, values: None
+    with pytest.raises(GripperTimeout, match=r"requested 255.*sent \d+ times and never taken"):
+        gripper.move_and_wait(0.060, speed_mps=0.150, force_n=40.0, timeout_s=1.5)
 
 
 def test_motion_before_activation_is_refused(gripper):

@@ -133,6 +133,37 @@ def test_a_silent_device_gives_a_clear_error_within_the_timeout(client, server):
     assert client.read_holding_registers(9, STATUS_ADDRESS, 3)
 
 
+def test_a_write_answered_by_a_late_read_answer_is_sent_again(client, server):
+    # Under load the two cross: the write is lost on the line, and the spare answer to
+    # an earlier, retried status read arrives in its place. Taken as the write's
+    # answer it would make a command look applied that the device never saw.
+    server.lose_requests = 1
+    server.late_answers.append(b(MANUAL_STATUS_CONTACT))
+    client.write_registers(9, COMMAND_ADDRESS, [0x0900, 0x00FF, 0xFFFF])
+    assert server.device.command.to_registers() == (0x0900, 0x00FF, 0xFFFF)
+    assert client.failed_attempts >= 1 and client.transactions == 1
+
+
+def test_a_read_answered_by_a_late_write_echo_is_sent_again(client, server):
+    client.write_registers(9, COMMAND_ADDRESS, [0x0100, 0, 0])
+    server.late_answers.append(b(MANUAL_WRITE_ACK))
+    assert client.read_holding_registers(9, COMMAND_ADDRESS, 3) == (0x0100, 0, 0)
+    server.late_answers.append(b(MANUAL_STATUS_ACTIVATED))  # one register, not three
+    assert client.read_holding_registers(9, COMMAND_ADDRESS, 3) == (0x0100, 0, 0)
+    assert client.failed_attempts >= 2
+
+
+def test_only_answers_to_other_requests_give_a_clear_error(client, server):
+    server.lose_requests = 3
+    server.late_answers.extend([b(MANUAL_STATUS_CONTACT)] * 3)
+    with pytest.raises(mb.ModbusFrameError, match=r"do not fit the request \(function 0x10; last answer: "
+                                                  r"function 0x03, 3 registers\) in 3 attempts"):
+        client.write_registers(9, COMMAND_ADDRESS, [0x0900, 0x00FF, 0xFFFF])
+    assert server.device.command.to_registers() != (0x0900, 0x00FF, 0xFFFF)
+    client.write_registers(9, COMMAND_ADDRESS, [0x0900, 0x00FF, 0xFFFF])  # the line is fine again
+    assert server.device.command.to_registers() == (0x0900, 0x00FF, 0xFFFF)
+
+
 def test_an_exception_response_is_raised_not_retried(client, server):
     served = server.requests_served
     with pytest.raises(mb.ModbusExceptionResponse, match="exception 0x02: illegal data address") as error:
