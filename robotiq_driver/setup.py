@@ -18,9 +18,9 @@ setup(
         # Each executable is started as: ros2 run robotiq_driver <name>
         "console_scripts": [
             "gripper = robotiq_driver.gripper_node:main",
-            "gripper_emulator = robotiq_driver.pty_gripper_emulator:main",
+            "gripper_emulator = robotiq_driver.emulator.cli:main",
             "gripper_cli = robotiq_driver.gripper_cli:main",
-            "bench_gripper = robotiq_driver.bench_gripper:main",
+            "bench_gripper = robotiq_driver.emulator.bench_gripper:main",
         ],
     },
 )

@@ -41,8 +41,9 @@ class GripperConnectionError(GripperError):
 
 class GripperLinkError(GripperError):
     """The Modbus RTU line failed: no valid answer after the retries, an exception
-    response, or a port that could not be reopened. The `modbus_client.ModbusError`
-    (ModbusTimeout, ModbusExceptionResponse, ModbusConnectionError) is its __cause__."""
+    response, answers that do not fit the request, or a port that could not be
+    reopened. The `modbus_client.ModbusError` (ModbusTimeout, ModbusExceptionResponse,
+    ModbusFrameError, ModbusConnectionError) is its __cause__."""
 
 
 class GripperNotReady(GripperError):

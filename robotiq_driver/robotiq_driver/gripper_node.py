@@ -22,7 +22,6 @@ import threading
 import time
 
 import rclpy
-import serial
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from gravgrasp_msgs.msg import GripperStatus
 from gravgrasp_msgs.srv import MoveGripper
@@ -36,7 +35,7 @@ from std_srvs.srv import Trigger
 from .gripper_client import GripperError, GripperLinkError, Robotiq2F85, describe_motion_end
 from .gripper_registers import MAJOR_FAULTS, GripperCommand, GripperScale, GripperState
 
-COMM_ERRORS = (GripperLinkError, serial.SerialException, OSError)  # the link is gone: reconnect
+COMM_ERRORS = GripperLinkError  # the link is gone: reconnect (the driver raises only GripperError)
 
 
 def _float_param(description, low, high):

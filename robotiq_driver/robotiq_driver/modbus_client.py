@@ -156,7 +156,13 @@ class ModbusRtuClient:
         return "the port opened on a second try; retry"
 
     def close(self) -> None:
-        self.client.close()
+        """Release the port. Never raises: closing the fd of a failed port can report
+        the failure again (EIO), and the handle is dropped either way, so the next
+        ``connect`` or call reopens the port by path."""
+        try:
+            self.client.close()
+        except OSError:
+            self.client.socket = None
 
     @property
     def connected(self) -> bool:
@@ -210,10 +216,12 @@ class ModbusRtuClient:
         for _ in range(attempts):
             try:
                 response = call()
-            except ConnectionException as error:
+            except (ConnectionException, OSError) as error:
                 # The port failed (EIO: adapter unplugged) or will not reopen. pymodbus
-                # closed it; the next attempt reopens it by path.
-                self.client.close()
+                # closed it; the next attempt reopens it by path. pymodbus turns pyserial's
+                # errors into ConnectionException, except the ones it re-raises as they
+                # are (BlockingIOError, InterruptedError): those are the line's too.
+                self.close()
                 self.failed_attempts += 1
                 port_error = error
                 continue

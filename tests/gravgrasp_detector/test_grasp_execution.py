@@ -13,9 +13,9 @@ import pytest
 
 from gravgrasp_detector import grasp_execution as ge
 from gravgrasp_detector.arm_reachability import ArmReachability
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from robotiq_driver.gripper_client import Robotiq2F85
-from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
-from robotiq_driver.pty_modbus_server import PtyModbusServer
 
 DOWN = [1.0, 0.0, 0.0, 0.0]  # quaternion (x, y, z, w): 180 deg about x -> TCP z points down
 

@@ -5,8 +5,8 @@ import time
 import pytest
 
 from robotiq_driver import gripper_cli
-from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
-from robotiq_driver.pty_modbus_server import PtyModbusServer
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from ros_testing import executable
 
 

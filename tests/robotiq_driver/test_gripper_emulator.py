@@ -1,7 +1,12 @@
 """The 2F-85 register-level emulator's state machine, on a hand-driven clock."""
 import pytest
 
-from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.emulated_gripper import (
+    ILLEGAL_DATA_ADDRESS,
+    DeviceException,
+    GripperEmulator,
+    KinematicFingers,
+)
 from robotiq_driver.gripper_registers import (
     COMMAND_ADDRESS,
     STATUS_ADDRESS,
@@ -10,7 +15,6 @@ from robotiq_driver.gripper_registers import (
     GripperState,
     ObjectStatus,
 )
-from robotiq_driver.gripper_emulator import ILLEGAL_DATA_ADDRESS, DeviceException
 
 
 class Clock:

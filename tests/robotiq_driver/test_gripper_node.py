@@ -6,8 +6,8 @@ from gravgrasp_msgs.msg import GripperStatus
 from gravgrasp_msgs.srv import MoveGripper
 from std_srvs.srv import Trigger
 
-from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
-from robotiq_driver.pty_modbus_server import PtyModbusServer
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from ros_testing import call_service, spin_until
 
 

@@ -7,6 +7,8 @@ import time
 import pytest
 import serial
 
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from robotiq_driver.gripper_client import (
     GripperConnectionError,
     GripperFault,
@@ -15,10 +17,8 @@ from robotiq_driver.gripper_client import (
     GripperTimeout,
     Robotiq2F85,
 )
-from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
 from robotiq_driver.gripper_registers import COMMAND_ADDRESS, STATUS_ADDRESS, GripperState, ObjectStatus
 from robotiq_driver.modbus_client import ILLEGAL_DATA_ADDRESS, ModbusConnectionError, ModbusTimeout
-from robotiq_driver.pty_modbus_server import PtyModbusServer
 
 
 @pytest.fixture
@@ -175,6 +175,24 @@ def test_port_vanishing_mid_move_then_returning(server, gripper, emulator):
     server.unplug()
     server.replug()  # replugged between two calls: the next call does not even fail
     assert gripper.read_state().object_detected
+
+
+def test_only_the_drivers_own_errors_escape(server, gripper, monkeypatch):
+    # pymodbus re-raises pyserial's BlockingIOError / InterruptedError as they are; the
+    # driver reports them as the line's failure, as any other port error.
+    def interrupted(*_):
+        raise InterruptedError(4, "Interrupted system call")
+
+    monkeypatch.setattr(gripper.modbus.client, "recv", interrupted)
+    with pytest.raises(GripperLinkError, match="could not be reopened") as error:
+        gripper.read_state()
+    assert isinstance(error.value.__cause__, ModbusConnectionError)
+    monkeypatch.undo()
+    assert gripper.read_state() is not None  # the port was reopened by path
+    # Closing a port that already failed reports EIO again: close() still never raises.
+    monkeypatch.setattr(gripper.modbus.client.socket, "close", lambda: interrupted())
+    gripper.close()
+    assert not gripper.modbus.connected
 
 
 def test_port_errors_say_what_to_check(server, gripper, tmp_path):

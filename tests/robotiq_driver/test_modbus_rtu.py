@@ -15,9 +15,9 @@ from pymodbus.pdu.register_message import (
 )
 
 from robotiq_driver import modbus_client as mb
-from robotiq_driver.gripper_emulator import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from robotiq_driver.gripper_registers import COMMAND_ADDRESS, STATUS_ADDRESS
-from robotiq_driver.pty_modbus_server import PtyModbusServer
 
 # Request/response pairs from the manual's example (activation, close, status reads).
 MANUAL_CLEAR_RACT = "09 10 03 E8 00 03 06 00 00 00 00 00 00 73 30"

@@ -3,7 +3,7 @@ through the robotiq FingerPlant, gravity, depth rendering, ground truth."""
 import numpy as np
 import pytest
 
-from robotiq_driver.gripper_emulator import GripperEmulator
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator
 from robotiq_driver.gripper_registers import COMMAND_ADDRESS, GripperCommand, ObjectStatus
 from sim_bridge.physics.contact import SimSettings
 from sim_bridge.physics.objects import procedural_object

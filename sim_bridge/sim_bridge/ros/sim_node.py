@@ -44,8 +44,8 @@ from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_detector.poses import PoseError
 from gravgrasp_detector.ros_interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
-from robotiq_driver.gripper_emulator import GripperEmulator
-from robotiq_driver.pty_modbus_server import PtyModbusServer
+from robotiq_driver.emulator.emulated_gripper import GripperEmulator
+from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 
 from ..physics.contact import SimSettings
 from ..world import CameraSettings, RealTimeRunner, SceneConfig, SimFingerPlant, SimWorld, WorldSettings

@@ -10,13 +10,13 @@ import time
 
 import numpy as np
 
-from robotiq_driver.gripper_emulator import FingerReading
+from robotiq_driver.emulator.emulated_gripper import FingerReading
 
 from .sim_world import SimWorld
 
 
 class SimFingerPlant:
-    """robotiq_driver.gripper_emulator.FingerPlant backed by a SimWorld: the emulator's
+    """robotiq_driver.emulator.emulated_gripper.FingerPlant backed by a SimWorld: the emulator's
     commanded opening, speed and force drive the simulated actuator; the reading is the
     simulated driver angle as an opening, `blocked` when the fingers stopped on an object
     short of the target, and 0.10 A while they move (0 once stopped: the 2F-85's drive is

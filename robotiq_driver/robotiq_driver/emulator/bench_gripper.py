@@ -16,9 +16,9 @@ import argparse
 import statistics
 import time
 
-from .gripper_client import Robotiq2F85
-from .gripper_emulator import GripperEmulator, KinematicFingers
-from .gripper_registers import GripperCommand
+from ..gripper_client import Robotiq2F85
+from ..gripper_registers import GripperCommand
+from .emulated_gripper import GripperEmulator, KinematicFingers
 from .pty_modbus_server import PtyModbusServer
 
 

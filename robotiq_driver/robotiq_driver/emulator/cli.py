@@ -16,8 +16,8 @@ import signal
 import sys
 import threading
 
-from .gripper_emulator import GripperEmulator, KinematicFingers
-from .gripper_registers import GripperScale
+from ..gripper_registers import GripperScale
+from .emulated_gripper import GripperEmulator, KinematicFingers
 from .pty_modbus_server import PtyModbusServer
 
 

@@ -44,8 +44,8 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from .gripper_emulator import DeviceException
-from .gripper_registers import COMMAND_ADDRESS, REGISTER_COUNT, STATUS_ADDRESS
+from ..gripper_registers import COMMAND_ADDRESS, REGISTER_COUNT, STATUS_ADDRESS
+from .emulated_gripper import DeviceException
 
 BROADCAST_ADDRESS = 0
 

@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
-from .gripper_registers import (
+from ..gripper_registers import (
     COMMAND_ADDRESS,
     CURRENT_A_PER_COUNT,
     MAJOR_FAULTS,
