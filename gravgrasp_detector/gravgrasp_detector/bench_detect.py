@@ -123,11 +123,12 @@ def main(argv=None):
     results = {}
     for precision in ("fp32", "bf16") if detection.bf16_available() else ("fp32",):
         cycle = iter(range(10**9))
+        options = detection.DetectionOptions(validness_threshold=args.validness_threshold,
+                                             max_grasps=args.max_grasps, precision=precision)
 
         def detect():
             grid = grids[next(cycle) % len(grids)]
-            return detection.detect_grasps(model, grid, voxel_size, max_grasps=args.max_grasps, precision=precision,
-                                           validness_threshold=args.validness_threshold)
+            return detection.detect_grasps(model, grid, voxel_size, options=options)
 
         results[f"detect_{precision}"] = median_ms(detect, args.runs)
         x = torch.from_numpy(grids[-2])[None, None]
@@ -149,8 +150,9 @@ def main(argv=None):
         for grid in grids:
             top = {}
             for precision in ("fp32", "bf16"):
-                grasps = detection.detect_grasps(model, grid, voxel_size, max_grasps=10, precision=precision,
-                                                 validness_threshold=args.validness_threshold)
+                options = detection.DetectionOptions(validness_threshold=args.validness_threshold,
+                                                     max_grasps=10, precision=precision)
+                grasps = detection.detect_grasps(model, grid, voxel_size, options=options)
                 top[precision] = [g.voxel_index for g in grasps]
             found.append(len(top["fp32"]))
             if not top["fp32"]:

@@ -174,8 +174,7 @@ class DetectNode(Node):
     def _detect(self, msg, received):
         grid, T_task_grid = volume_grid(msg, self.metadata)
         param = lambda name: self.get_parameter(name).value  # noqa: E731  (live, settable)
-        grasps = detection.detect_grasps(
-            self.model, grid, msg.voxel_size_m, T_task_grid,
+        options = detection.DetectionOptions(
             validness_threshold=param("validness_threshold"),
             min_score_n=param("min_score_n"),
             max_grasps=param("max_grasps"),
@@ -184,6 +183,7 @@ class DetectNode(Node):
             precision=self.precision,
             rank_by=self.rank_by,
         )
+        grasps = detection.detect_grasps(self.model, grid, msg.voxel_size_m, T_task_grid, options)
         self.problems.clear()
         latency_s = time.monotonic() - received
         out = GraspArray(header=msg.header, model_name=self.model_name)

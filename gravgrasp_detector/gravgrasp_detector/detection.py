@@ -25,7 +25,7 @@ bits: 0.125 N at 30 N) does not decide near-ties.
 The TCP position is the voxel centre: origin + (index + 0.5) * voxel_size_m.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -41,6 +41,33 @@ CLOSING_REGION_TCP = np.array([[-PAD_WIDTH_M / 2, -MAX_STROKE_M / 2, PALM_FACE_Z
                                [PAD_WIDTH_M / 2, MAX_STROKE_M / 2, FINGER_TIP_Z_M]])
 
 PRECISIONS = ("auto", "bf16", "fp32")
+RANKINGS = ("score", "validness")
+
+
+@dataclass(frozen=True)
+class DetectionOptions:
+    """How grasps are selected from the network's outputs (steps 1-5 of the module doc)
+    and how the network runs. The detect node's parameters of the same names."""
+
+    validness_threshold: float = 0.5
+    min_score_n: float = 0.0  # with rank_by "score" only
+    max_grasps: int = 20
+    surface_distance_voxels: int = 6
+    nms_radius_voxels: int = 2  # 0: no non-maximum suppression
+    min_surface_voxels: int = 1  # 0: no step 5
+    # "bf16" (autocast + channels_last_3d), "fp32", or "auto" (bf16 where the CPU has
+    # native bf16)
+    precision: str = "fp32"
+    # "score" (the gravity-rejection score [N]) or "validness" (a model trained with
+    # --target binary: its validness is its success probability);
+    # `model_file.ranking(metadata)` says which a model needs
+    rank_by: str = "score"
+
+    def __post_init__(self):
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
+        if self.rank_by not in RANKINGS:
+            raise ValueError(f"rank_by {self.rank_by!r}: use one of {RANKINGS}")
 
 
 @dataclass
@@ -105,39 +132,19 @@ def check_grid(tsdf_grid, resolution):
         )
 
 
-RANKINGS = ("score", "validness")
-
-
 @torch.inference_mode()
-def detect_grasps(
-    model,
-    tsdf_grid,
-    voxel_size_m,
-    origin=(0.0, 0.0, 0.0),
-    validness_threshold=0.5,
-    min_score_n=0.0,
-    max_grasps=20,
-    surface_distance_voxels=6,
-    nms_radius_voxels=2,
-    precision="fp32",
-    min_surface_voxels=1,
-    rank_by="score",
-):
-    """Ranked grasps (list of Grasp, highest score first) in the TSDF's frame.
+def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), options=DetectionOptions()):
+    """Ranked grasps (list of Grasp, best first) in the TSDF's frame.
 
-    rank_by: "score" (the gravity-rejection score [N], at least min_score_n) or
-    "validness" (a model trained with --target binary: its validness is its success
-    probability; min_score_n does not apply, and each Grasp's score_n carries the
-    validness it was ranked by). `model_file.ranking(metadata)` says which a model needs.
+    With options.rank_by "score" they are ranked by the gravity-rejection score [N], at
+    least options.min_score_n; with "validness" by validness (min_score_n does not
+    apply, and each Grasp's score_n carries the validness it was ranked by).
 
     model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
     value convention. origin: the grid corner in the task frame (3-vector or 4x4).
-    precision: "bf16" (autocast + channels_last_3d), "fp32", or "auto" (bf16 where
-    the CPU has native bf16). Raises InputError for an unusable grid.
+    Raises InputError for an unusable grid.
     """
-    if rank_by not in RANKINGS:
-        raise ValueError(f"rank_by {rank_by!r}: use one of {RANKINGS}")
-    precision = resolve_precision(precision)
+    precision = resolve_precision(options.precision)
     grid = torch.as_tensor(np.asarray(tsdf_grid, dtype=np.float32))
     check_grid(grid, model.resolution)
     layout = _prepare(model, precision)
@@ -150,8 +157,8 @@ def detect_grasps(
     half = half.float()
     score_n, validness_logit = model.score_and_validness_from_half(half)
     validness = torch.sigmoid(validness_logit[0])
-    if rank_by == "validness":
-        score_n, min_score_n = validness[None], 0.0
+    if options.rank_by == "validness":
+        score_n, options = validness[None], replace(options, min_score_n=0.0)
     return select_grasps(
         grid,
         score_n[0],
@@ -160,12 +167,7 @@ def detect_grasps(
         model.rotation_representation,
         voxel_size_m,
         origin,
-        validness_threshold=validness_threshold,
-        min_score_n=min_score_n,
-        max_grasps=max_grasps,
-        surface_distance_voxels=surface_distance_voxels,
-        nms_radius_voxels=nms_radius_voxels,
-        min_surface_voxels=min_surface_voxels,
+        options,
     )
 
 
@@ -226,31 +228,28 @@ def select_grasps(
     rotation_representation,
     voxel_size_m,
     origin=(0.0, 0.0, 0.0),
-    validness_threshold=0.5,
-    min_score_n=0.0,
-    max_grasps=20,
-    surface_distance_voxels=6,
-    nms_radius_voxels=2,
-    min_surface_voxels=1,
+    options=DetectionOptions(),
 ):
-    """Steps 1-5 of the module doc on network outputs (min_surface_voxels 0: no step 5).
+    """Steps 1-5 of the module doc on network outputs, ranked by ``score_n`` (options'
+    precision and rank_by are the caller's: they choose the outputs).
 
     grid, score_n, validness: (R, R, R) tensors; rotation_channels_at: callable
     (N, 3) long voxel indices -> (N, C) rotation channels.
     """
+    max_grasps = int(options.max_grasps)
     grid = torch.as_tensor(grid)
     score_n = torch.as_tensor(score_n).float()
     validness = torch.as_tensor(validness).float()
-    candidate = near_surface_mask(grid, surface_distance_voxels) & (validness >= validness_threshold)
-    candidate &= (score_n >= min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
+    candidate = near_surface_mask(grid, options.surface_distance_voxels) & (validness >= options.validness_threshold)
+    candidate &= (score_n >= options.min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
     masked = torch.where(candidate, score_n, torch.full_like(score_n, -1.0))
-    r = int(nms_radius_voxels)
+    r = int(options.nms_radius_voxels)
     if r > 0:
         candidate &= masked == cube_max(masked, r)
     index = candidate.nonzero()
     scores = score_n[candidate]
     # rotations for a few more than max_grasps: step 5 may veto some
-    ranked = 4 * int(max_grasps) if min_surface_voxels > 0 else int(max_grasps)
+    ranked = 4 * max_grasps if options.min_surface_voxels > 0 else max_grasps
     order = torch.sort(scores, descending=True, stable=True).indices[:ranked]
     index, scores = index[order], scores[order]
     valid = validness[tuple(index.T)]
@@ -263,16 +262,16 @@ def select_grasps(
     poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
     poses[:, 3, 3] = 1.0
     keep = np.arange(len(index))
-    if min_surface_voxels > 0:
+    if options.min_surface_voxels > 0:
         # best first, a chunk at a time: usually the first chunk fills max_grasps
-        kept, n = [], int(max_grasps)
+        kept, n = [], max_grasps
         for start in range(0, len(index), n):
             counts = surface_voxels_in_closing_region(grid, poses[start:start + n], voxel_size_m)
-            kept.extend(start + np.flatnonzero(counts >= min_surface_voxels))
+            kept.extend(start + np.flatnonzero(counts >= options.min_surface_voxels))
             if len(kept) >= n:
                 break
         keep = np.asarray(kept, int)
-    keep = keep[: int(max_grasps)]
+    keep = keep[:max_grasps]
     poses = _to_transform(origin) @ poses[keep]
     scores, valid, index = scores[keep], valid[keep], index[keep]
     return [

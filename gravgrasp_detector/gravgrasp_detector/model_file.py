@@ -106,7 +106,7 @@ def training_target(metadata: dict) -> str:
 
 
 def ranking(metadata: dict) -> str:
-    """How detection ranks this model's grasps (detection.detect_grasps' rank_by):
+    """How detection ranks this model's grasps (detection.DetectionOptions.rank_by):
     "validness" for a model trained with `--target binary`, else "score"."""
     return "validness" if training_target(metadata) == "binary" else "score"
 

@@ -58,9 +58,9 @@ def test_every_published_grasp_has_observed_surface_between_the_fingers(sensor_l
     tsdf.integrate(depth, K, T)
     grid = tsdf.grid()
     vs = SIZE / model.resolution
-    grasps = detection.detect_grasps(model, grid, vs, max_grasps=30, validness_threshold=0.5)
-    unfiltered = detection.detect_grasps(model, grid, vs, max_grasps=120, validness_threshold=0.5,
-                                         min_surface_voxels=0)
+    grasps = detection.detect_grasps(model, grid, vs, options=detection.DetectionOptions(max_grasps=30))
+    no_veto = detection.DetectionOptions(max_grasps=120, min_surface_voxels=0)
+    unfiltered = detection.detect_grasps(model, grid, vs, options=no_veto)
     assert grasps, "the model found no grasp on two graspable objects"
     for g in grasps:
         assert closing_region_surface(grid, g.pose, vs) >= 1, f"grasp at voxel {g.voxel_index} holds nothing"

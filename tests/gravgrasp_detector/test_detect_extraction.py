@@ -1,4 +1,6 @@
 """Grasp extraction on hand-made volumes, and the network path that feeds it."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -38,12 +40,11 @@ def hand_made_outputs():
     return score, validness
 
 
-def select(**kwargs):
+def select(origin=(0.0, 0.0, 0.0), **options):
     """Steps 1-4 on the bare table (step 5, something between the fingers, has its own test)."""
     score, validness = hand_made_outputs()
-    args = dict(voxel_size_m=VS, origin=(0.0, 0.0, 0.0), min_surface_voxels=0)
-    args.update(kwargs)
-    return detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", **args)
+    options = detection.DetectionOptions(**{"min_surface_voxels": 0, **options})
+    return detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS, origin, options)
 
 
 def test_hand_made_volume_gives_expected_grasps_in_order():
@@ -106,11 +107,11 @@ def test_a_grasp_with_nothing_between_the_fingers_is_not_published():
     score[27, 20, 10] = 10.0               # 52 mm from it across the pads (x)
     score[20, 25, 10] = 8.0                # 30 mm along y: the post is between the open fingers
     grasps = detection.select_grasps(torch.from_numpy(grid), score, validness, top_down_channels, "ex-ez", VS,
-                                     nms_radius_voxels=0)
+                                     options=detection.DetectionOptions(nms_radius_voxels=0))
     assert [g.voxel_index for g in grasps] == [(20, 20, 10), (20, 25, 10)]
     # the veto is what removed the others
     everything = detection.select_grasps(torch.from_numpy(grid), score, validness, top_down_channels, "ex-ez", VS,
-                                         nms_radius_voxels=0, min_surface_voxels=0)
+                                         options=detection.DetectionOptions(nms_radius_voxels=0, min_surface_voxels=0))
     assert len(everything) == 5
     counts = detection.surface_voxels_in_closing_region(grid, np.array([g.pose for g in everything]), VS)
     assert [int(c > 0) for c in counts] == [0, 0, 0, 1, 1]   # 12, 11, 10 N vetoed; 9 and 8 N kept
@@ -175,13 +176,15 @@ def test_detect_grasps_fp32_matches_dense_forward():
     torch.manual_seed(1)
     net = networks.GraspNet("ex-ez").eval()
     grid = table_grid()
-    grasps = detection.detect_grasps(net, grid.numpy(), VS, validness_threshold=0.5, max_grasps=30, precision="fp32")
+    options = detection.DetectionOptions(validness_threshold=0.5, max_grasps=30, precision="fp32")
+    grasps = detection.detect_grasps(net, grid.numpy(), VS, options=options)
     with torch.inference_mode():
         out = net(grid[None, None])
     validness = torch.sigmoid(out["validness_logit"][0])
     rot = out["rotation"][0]
     reference = detection.select_grasps(
-        grid, out["score_n"][0], validness, lambda i: rot[:, i[:, 0], i[:, 1], i[:, 2]].T, "ex-ez", VS, max_grasps=30
+        grid, out["score_n"][0], validness, lambda i: rot[:, i[:, 0], i[:, 1], i[:, 2]].T, "ex-ez", VS,
+        options=options,
     )
     assert len(grasps) == len(reference) > 0
     for a, b in zip(grasps, reference):
@@ -214,7 +217,8 @@ def test_float32_inference_convolutions_match_autograd_path():
 def test_detect_grasps_bf16_path_runs_and_ranks():
     torch.manual_seed(1)
     net = networks.GraspNet("ex-ez").eval()
-    grasps = detection.detect_grasps(net, table_grid().numpy(), VS, precision="bf16", max_grasps=10)
+    grasps = detection.detect_grasps(net, table_grid().numpy(), VS,
+                                     options=detection.DetectionOptions(precision="bf16", max_grasps=10))
     scores = [g.score_n for g in grasps]
     assert scores == sorted(scores, reverse=True)
     assert net.enc1.weight.is_contiguous(memory_format=torch.channels_last_3d)
@@ -240,11 +244,13 @@ def test_validness_ranking_for_a_binary_model():
     torch.manual_seed(0)
     net = networks.GraspNet().eval()
     grid = table_grid().numpy()
-    by_score = detection.detect_grasps(net, grid, VS, validness_threshold=0.0, min_score_n=1e6, max_grasps=10)
-    by_validness = detection.detect_grasps(net, grid, VS, validness_threshold=0.0, min_score_n=1e6, max_grasps=10,
-                                           rank_by="validness")
+    options = detection.DetectionOptions(validness_threshold=0.0, min_score_n=1e6, max_grasps=10)
+    by_score = detection.detect_grasps(net, grid, VS, options=options)
+    by_validness = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(options, rank_by="validness"))
     assert not by_score and by_validness  # no grasp holds 1e6 N; probabilities ignore it
     assert [g.validness for g in by_validness] == sorted((g.validness for g in by_validness), reverse=True)
     assert all(g.score_n == pytest.approx(g.validness) for g in by_validness)
     with pytest.raises(ValueError, match="rank_by"):
-        detection.detect_grasps(net, grid, VS, rank_by="probability")
+        detection.DetectionOptions(rank_by="probability")
+    with pytest.raises(ValueError, match="precision"):
+        detection.DetectionOptions(precision="fp16")

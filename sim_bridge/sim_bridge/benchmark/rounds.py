@@ -12,7 +12,7 @@ from concurrent.futures.process import BrokenProcessPool
 import numpy as np
 import torch
 
-from gravgrasp_detector.detection import detect_grasps
+from gravgrasp_detector.detection import DetectionOptions, detect_grasps
 from gravgrasp_detector.model_file import check_volume, file_sha256, load_model, ranking, training_target
 from gravgrasp_detector.tsdf import TSDFVolume
 
@@ -30,14 +30,14 @@ def make_detector(model, metadata, protocol: Protocol):
     """tsdf tuple -> ranked grasps. Score methods rank by the gravity-rejection score [N]
     with min_score_n; binary methods rank by validness (their success probability), as the
     detect node serves them."""
-    rank_by = ranking(metadata)
+    options = DetectionOptions(validness_threshold=protocol.validness_threshold, min_score_n=protocol.min_score_n,
+                               max_grasps=protocol.max_grasps, rank_by=ranking(metadata))
 
     def detect(tsdf):
         grid, voxel_size_m, origin = tsdf
         if not np.any(grid):
             return []
-        return detect_grasps(model, grid, voxel_size_m, origin, validness_threshold=protocol.validness_threshold,
-                             min_score_n=protocol.min_score_n, max_grasps=protocol.max_grasps, rank_by=rank_by)
+        return detect_grasps(model, grid, voxel_size_m, origin, options)
     return detect
 
 
