@@ -2,7 +2,7 @@
 
 Six synthetic scenes (test_training.make_scene: a fused TSDF of a box with top-down
 labels) laid out as `datagen scenes` does (DATA/scenes/*.npz + manifest.json naming the
-grasp tables), three small grasp tables, two epochs of `training.train`.
+grasp tables), three small grasp tables, two epochs of `training_loop.train`.
 """
 import json
 import shutil
@@ -10,7 +10,8 @@ import shutil
 import numpy as np
 import pytest
 
-from gravgrasp_detector import model_card, model_file, training
+from gravgrasp_detector import model_card, model_file, training_loop
+from gravgrasp_detector.training_config import TrainConfig
 from test_training import make_scene
 
 pytestmark = pytest.mark.slow  # the fixture trains a model
@@ -34,7 +35,7 @@ def run(tmp_path_factory):
         np.savez_compressed(scenes / f"{n:06d}.npz", **z, arrangement=np.asarray("packed"))  # datagen writes it
     (scenes / "manifest.json").write_text(json.dumps({"objects_dir": str(tables)}))
     out = root / "run"
-    training.train(training.TrainConfig(data=str(root / "data"), out=str(out), epochs=2, threads=1), progress=False)
+    training_loop.train(TrainConfig(data=str(root / "data"), out=str(out), epochs=2, threads=1), progress=False)
     models = root / "models"
     models.mkdir()
     shutil.copy(out / "model.pt", models / "gravgrasp.pt")

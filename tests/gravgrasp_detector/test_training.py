@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from gravgrasp_detector import model_file, rotation, training, tsdf
+from gravgrasp_detector import model_file, rotation, training, training_loop, training_losses, training_scenes, tsdf
+from gravgrasp_detector.training_config import TrainConfig
 
 
 def _box_depth(intr, T_task_camera, box_min, box_max, table_z=0.05):
@@ -78,10 +79,10 @@ def scenes(tmp_path_factory):
 
 
 def test_quarter_turn_keeps_labels_on_the_same_geometry(scenes):
-    scene = training.load_scene(sorted(scenes.glob("*.npz"))[0])
+    scene = training_scenes.load_scene(sorted(scenes.glob("*.npz"))[0])
     grid = scene["tsdf"]
     for k in range(4):
-        g, idx, ex, ez = training.rotate_about_gravity(grid, scene["index"], scene["e_x"], scene["e_z"], k)
+        g, idx, ex, ez = training_scenes.rotate_about_gravity(grid, scene["index"], scene["e_x"], scene["e_z"], k)
         i, j, l = idx.T
         np.testing.assert_array_equal(g[i, j, l], grid[tuple(scene["index"].T)])
         # The approach stays vertical; e_x turns by k*90 deg about z.
@@ -94,21 +95,21 @@ def test_rotation_loss_is_zero_for_the_180_degree_twin():
     R = rotation.from_quat(torch.randn(16, 4))
     for rep in rotation.CHANNELS:
         twin_channels = rotation.encode(rep, rotation.symmetric_twin(R))
-        assert training.rotation_loss(rep, twin_channels, R) < 1e-8
-        assert training.rotation_loss(rep, rotation.encode(rep, R), R) < 1e-8
+        assert training_losses.rotation_loss(rep, twin_channels, R) < 1e-8
+        assert training_losses.rotation_loss(rep, rotation.encode(rep, R), R) < 1e-8
     other = rotation.from_quat(torch.randn(16, 4))
-    assert training.rotation_loss("ex-ez", rotation.encode("ex-ez", other), R) > 0.1
+    assert training_losses.rotation_loss("ex-ez", rotation.encode("ex-ez", other), R) > 0.1
 
 
 def test_auroc_matches_hand_computed_values():
-    assert training.auroc([0.1, 0.4, 0.35, 0.8], [0, 0, 1, 1]) == pytest.approx(0.75)
-    assert training.auroc([1, 2, 3], [0, 1, 1]) == 1.0
+    assert training_losses.auroc([0.1, 0.4, 0.35, 0.8], [0, 0, 1, 1]) == pytest.approx(0.75)
+    assert training_losses.auroc([1, 2, 3], [0, 1, 1]) == 1.0
 
 
 @pytest.mark.slow  # trains three times (minutes)
 def test_training_learns_and_resumes_deterministically(scenes, tmp_path):
     common = dict(data=str(scenes), batch_size=4, learning_rate=3e-3, seed=3, threads=2)
-    full = training.train(training.TrainConfig(out=str(tmp_path / "a"), epochs=4, **common), progress=False)
+    full = training_loop.train(TrainConfig(out=str(tmp_path / "a"), epochs=4, **common), progress=False)
     history = json.loads((tmp_path / "a" / "history.json").read_text())
     assert len(history) == 4
     assert history[-1]["train_total"] < history[0]["train_total"]
@@ -118,8 +119,8 @@ def test_training_learns_and_resumes_deterministically(scenes, tmp_path):
     assert (tmp_path / "a" / "training_curve.png").stat().st_size > 5000
 
     # Interrupted after 2 epochs, resumed to 4: the same weights as the straight run.
-    training.train(training.TrainConfig(out=str(tmp_path / "b"), epochs=2, **common), progress=False)
-    resumed = training.train(training.TrainConfig(out=str(tmp_path / "b"), epochs=4, **common), progress=False)
+    training_loop.train(TrainConfig(out=str(tmp_path / "b"), epochs=2, **common), progress=False)
+    resumed = training_loop.train(TrainConfig(out=str(tmp_path / "b"), epochs=4, **common), progress=False)
     assert resumed["val_loss_total"] == pytest.approx(full["val_loss_total"], rel=1e-5)
 
     model, meta = model_file.load_model(tmp_path / "a" / "model.pt")
@@ -132,7 +133,7 @@ def test_variants_train_and_record_their_target(scenes, tmp_path):
     for extra in ({"rotation": "quat"}, {"target": "binary", "nominal_mass_kg": 3.5},
                   {"subset": "precision-only"}):
         out = tmp_path / "-".join(map(str, extra.values()))
-        training.train(training.TrainConfig(data=str(scenes), out=str(out), epochs=1, batch_size=5, **extra),
+        training_loop.train(TrainConfig(data=str(scenes), out=str(out), epochs=1, batch_size=5, **extra),
                        progress=False)
         _, meta = model_file.load_model(out / "model.pt")
         for key, value in extra.items():
@@ -149,13 +150,13 @@ def test_missing_data_is_one_clear_error(tmp_path, capsys):
 
 
 def test_precision_only_keeps_the_grasps_named_precision_in_the_scene_file(scenes):
-    scene = training.load_scene(sorted(scenes.rglob("*.npz"))[0])
-    config = training.TrainConfig(data="", out="", subset="precision-only")
-    _, score, *_ = training.select_labels(scene, config)
+    scene = training_scenes.load_scene(sorted(scenes.rglob("*.npz"))[0])
+    config = TrainConfig(data="", out="", subset="precision-only")
+    _, score, *_ = training_scenes.select_labels(scene, config)
     precision = scene["mode"] == 1  # make_scene: mode_names[1] == "precision" (score <= 35)
     assert len(score) == precision.sum() > 0
     assert (score <= 35).all()
     # A file that orders its names differently is read by name, not by number.
     swapped = dict(scene, mode_names=("precision", "power", "none"))
-    _, score_swapped, *_ = training.select_labels(swapped, config)
+    _, score_swapped, *_ = training_scenes.select_labels(swapped, config)
     assert (score_swapped > 35).all() and len(score_swapped) == (~precision).sum()

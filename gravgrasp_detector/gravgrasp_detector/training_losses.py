@@ -1,0 +1,76 @@
+"""The losses of the paper and the validation metrics.
+
+Losses:
+- score: L2 on the gravity-rejection score [N] at valid voxels only;
+- validness: cross-entropy over all voxels, positives weighted by the negative/
+  positive ratio (labels are a few hundred voxels in 64k);
+- rotation: at valid voxels, squared Frobenius distance between the rebuilt R (Eq. 2
+  for ex-ez) and the label, taking the min over the 2F-85's 180 deg twin.
+Metrics: the rotation's angular error and the validness AUROC.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from . import rotation
+from .training_config import TrainConfig
+
+
+def losses(model, outputs, batch, config: TrainConfig):
+    """-> dict of the three loss terms and their weighted total, for a batch."""
+    b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)])
+    ijk = torch.cat([ex["index"] for ex in batch]).long()
+    target_valid = torch.cat([ex["valid"] for ex in batch])
+    valid_dense = torch.zeros_like(outputs["validness_logit"])
+    valid_dense[b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2]] = target_valid
+    positives = valid_dense.sum().clamp_min(1.0)
+    pos_weight = ((valid_dense.numel() - positives) / positives).clamp(1.0, 1000.0)
+    loss_valid = F.binary_cross_entropy_with_logits(
+        outputs["validness_logit"], valid_dense, pos_weight=pos_weight)
+
+    at = (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2])
+    pos = target_valid > 0.5
+    zero = outputs["score_n"].sum() * 0.0
+    if config.target == "binary" or not pos.any():
+        loss_score = zero
+    else:
+        target_score = torch.cat([ex["score"] for ex in batch])
+        loss_score = F.mse_loss(outputs["score_n"][at][pos], target_score[pos]) / model.score_scale_n ** 2
+    if not pos.any():
+        loss_rot = zero
+    else:
+        channels = outputs["rotation"].permute(0, 2, 3, 4, 1)[at][pos].float()
+        loss_rot = rotation_loss(model.rotation_representation, channels, torch.cat([ex["R"] for ex in batch])[pos])
+    total = (config.loss_weight_score * loss_score + config.loss_weight_validness * loss_valid
+             + config.loss_weight_rotation * loss_rot)
+    return {"total": total, "score": loss_score, "validness": loss_valid, "rotation": loss_rot}
+
+
+def rotation_loss(representation, channels, R_target):
+    """Mean over grasps of min(|R - R_t|_F^2, |R - twin(R_t)|_F^2)."""
+    R = rotation.reconstruct(representation, channels)
+    d = ((R - R_target) ** 2).sum((-1, -2))
+    d_twin = ((R - rotation.symmetric_twin(R_target)) ** 2).sum((-1, -2))
+    return torch.minimum(d, d_twin).mean()
+
+
+def angular_error_deg(R, R_target):
+    """Geodesic angle between R and the nearer of R_target and its 180 deg twin."""
+    def angle(a, b):
+        cos = (((a.transpose(-1, -2) @ b).diagonal(dim1=-2, dim2=-1).sum(-1)) - 1) / 2
+        return torch.rad2deg(torch.arccos(cos.clamp(-1, 1)))
+    return torch.minimum(angle(R, R_target), angle(R, rotation.symmetric_twin(R_target)))
+
+
+def auroc(scores, labels):
+    """Area under the ROC curve (rank statistic); nan without both classes."""
+    scores, labels = np.asarray(scores, float), np.asarray(labels, bool)
+    n_pos, n_neg = labels.sum(), (~labels).sum()
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    order = np.argsort(scores, kind="mergesort")
+    ranks = np.empty(len(scores))
+    ranks[order] = np.arange(1, len(scores) + 1)
+    return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
