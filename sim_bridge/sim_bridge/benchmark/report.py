@@ -10,6 +10,7 @@ import numpy as np
 
 from gravgrasp_detector import atomic_files
 from ..physics.scenes import ARRANGEMENTS
+from .clearing import success_rates
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, weight_key
 
 # statistics
@@ -39,11 +40,12 @@ def summarize(rounds: list, plan: dict) -> list:
             s = sum(r["successes"] for r in rs)
             a = sum(len(r["attempts"]) for r in rs)
             o = sum(r["n_objects"] for r in rs)
+            sr, cr = success_rates(s, a, o)
             rows.append({"method": method, "mass_kg": float(w), "rounds": len(rs), "objects": o, "attempts": a,
                          "left_before_start": sum(len(r.get("left_before_start", [])) for r in rs),
                          "fell_off": sum(len(r["fell_off"]) for r in rs),
-                         "successes": s, "SR": s / a if a else math.nan, "SR_ci95": wilson_interval(s, a),
-                         "CR": s / o if o else math.nan, "CR_ci95": wilson_interval(s, o)})
+                         "successes": s, "SR": sr, "SR_ci95": wilson_interval(s, a),
+                         "CR": cr, "CR_ci95": wilson_interval(s, o)})
     return rows
 
 

@@ -3,10 +3,11 @@
 Starts the sim bridge (`sim`) and the deployed stack (`stack`: tsdf + detect +
 execute) as separate processes talking over DDS and Modbus RTU, exactly as on a
 robot, then repeats: fresh TSDF of the scene -> top grasp from /grasps ->
-/execute_grasp -> a lifted object is taken out of the scene (as the paper's
-clutter-removal protocol does). A round ends when the table is clear, after 2
-consecutive failures, when no grasp is detected, or when the executor reports a
-fault (it disarms; a person would look).
+/execute_grasp -> a lifted object is taken out of the scene. The round is the clutter
+benchmark's (`benchmark.clearing.clear_table`, the paper's clutter-removal protocol):
+it ends when the table is clear, after 2 consecutive failures, when no grasp is
+detected or none passes the executor's checks, or when the executor reports a fault
+(it disarms; a person would look); SR and CR are counted as the benchmark does.
 
 Gravity-aware: every object weighs `--mass-kg` (1 kg by default), and the detector
 only returns grasps scored at least `--safety` x its weight; each attempt prints the
@@ -53,6 +54,8 @@ from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
+
+from ..benchmark.clearing import CONSECUTIVE_FAILURES_END, Fault, Refused, clear_table, success_rates
 
 REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Response.UNREACHABLE)
 # The executor disarms on these: a robot would wait for a person, so the round ends.
@@ -267,6 +270,102 @@ def save_summary_png(report, path):
     plt.close(fig)
 
 
+class DemoCell:
+    """What `clearing.clear_table` drives, over ROS: the sim bridge's object states, the
+    stack's detections (fresh TSDF -> /grasps) and its /execute_grasp. Judges each
+    attempt by the executor and by the sim's ground truth, prints it, adds it to the
+    report and takes a lifted object out of the scene."""
+
+    def __init__(self, client, args, min_score_n, out, report):
+        self.client, self.args, self.min_score_n, self.out, self.report = client, args, min_score_n, out, report
+        self.states = client.states  # before the current attempt: the grasped object's name and mass
+        self.n_attempts = 0
+        self.grasps_detected, self.last_refusal = 0, ""
+        self._fallen = set()
+        self._tried = 0  # grasps of the current view sent to the executor
+        self._t0 = time.monotonic()
+
+    def objects_on_table(self) -> list:
+        s = self.client.states
+        return [n for n, gone in zip(s.names, s.out_of_workspace) if not gone]
+
+    def remove_fallen(self) -> list:
+        s = self.client.states
+        fallen = [n for n, gone in zip(s.names, s.out_of_workspace) if gone and n not in self._fallen]
+        self._fallen.update(fallen)
+        return fallen
+
+    def detect(self) -> tuple:
+        """(GraspArray, its grasps best first) detected in a fresh TSDF."""
+        client = self.client
+        self.states = client.states
+        client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=True), 10)
+        grasps = client.fresh_grasps(timeout_s=60)
+        if grasps is None or not grasps.grasps:
+            return grasps, []
+        save_scene_png(client, grasps, self.out / f"attempt_{self.n_attempts + 1:02d}.png")
+        # While the arm moves nobody needs new views: fusing and detecting them would
+        # take CPU from the physics. (Paused only now: the executor wants a TSDF
+        # younger than its max_tsdf_age_s.)
+        client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=False), 10)
+        self._t0, self._tried, self.grasps_detected = time.monotonic(), 0, len(grasps.grasps)
+        client.modes_seen = {}
+        return grasps, list(grasps.grasps)
+
+    def execute(self, top, grasps) -> dict:
+        """One /execute_grasp call. A grasp the executor refuses before moving (hand in
+        collision with the TSDF, unreachable) raises Refused; a fault (it disarms)
+        raises Fault."""
+        client, states = self.client, self.states
+        rank, self._tried = self._tried, self._tried + 1
+        request = ExecuteGrasp.Request(use_index=False, grasp=top)
+        request.header = grasps.header
+        response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
+        if response.result_code in REFUSED_BEFORE_MOTION:
+            self.last_refusal = response.message
+            raise Refused(response.message)
+        result = RESULT_NAMES.get(response.result_code, str(response.result_code))
+        if response.result_code in FAULTS:
+            print(f"executor fault on grasp #{rank + 1}: {result} ({response.message}): round ends", flush=True)
+            raise Fault(f"{result}: {response.message}")
+        after = client.states_after(1.0)
+        truth, lifted, mode = judge(after)
+        pp, qq = top.pose.position, top.pose.orientation
+        # The grasped object: the lifted one, else the one nearest the grasp before it
+        # (a dropped object may have rolled anywhere since).
+        target = lifted[0] if lifted else (states.names[nearest_object(states, (pp.x, pp.y, pp.z))]
+                                           if states.names else "")
+        mass = dict(zip(states.names, states.mass_kg)).get(target, self.args.mass_kg)
+        # The mode the contacts showed while it was in the hand (4 Hz samples during
+        # the execution), also for an object lost later in the lift.
+        mode = mode or client.modes_seen.get(target, "")
+        weight_n = mass * G_MPS2
+        score = float(top.gravity_rejection_score)
+        success = bool(response.success) and truth
+        outcome = "success" if success else "not_lifted" if response.success else result.lower()
+        attempt = {"score_n": score, "validness": float(top.validness),
+                   "all_scores_n": [float(g.gravity_rejection_score) for g in grasps.grasps],
+                   "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
+                   "object": target, "weight_n": round(weight_n, 2), "mode": mode,
+                   "result": result, "message": response.message, "outcome": outcome,
+                   "lifted": lifted, "executor_success": bool(response.success), "ground_truth_lifted": truth,
+                   "wall_s": round(time.monotonic() - self._t0, 1)}
+        self.n_attempts += 1
+        k = self.n_attempts
+        print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
+              f"({score / weight_n:.1f}x), {mode + ' grasp' if mode else 'never in the hand'} -> "
+              f"{'SUCCESS' if success else 'FAIL'} "
+              f"({result}: {response.message})", flush=True)
+        if bool(response.success) != truth:
+            error = (f"attempt {k}: the executor said {result} but the sim's ground truth says "
+                     + (f"{', '.join(lifted)} is lifted" if truth else "nothing is lifted"))
+            self.report["errors"].append(error)
+            print(f"ERROR: {error}", flush=True)
+        for name in lifted:
+            client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
+        return attempt
+
+
 def run(args) -> dict:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -276,6 +375,7 @@ def run(args) -> dict:
     report = {"seed": args.seed, "n_objects": args.objects, "arrangement": args.arrangement,
               "object_mass_kg": args.mass_kg, "safety": args.safety, "min_score_n": min_score_n,
               "model": args.model, "attempts": [], "errors": []}
+    n_objects = None
     t_start = time.monotonic()
     try:
         procs.start("sim", [installed("sim_bridge", "sim"), "--ros-args",
@@ -296,91 +396,29 @@ def run(args) -> dict:
         client.call(SetBool, "execute/arm", SetBool.Request(data=True), 30)
         print(f"{args.objects} objects of {args.mass_kg:g} kg (weight {args.mass_kg * G_MPS2:.1f} N); the detector "
               f"returns grasps scored >= {min_score_n:.1f} N ({args.safety:g} x weight)", flush=True)
-        n_objects = None
-        failures = 0
-        while failures < 2:
-            states = client.states
-            on_table = [] if states is None else [n for n, out_ in zip(states.names, states.out_of_workspace) if not out_]
-            if n_objects is None and states is not None:
-                n_objects = len(states.names)
-                report["objects"] = list(states.names)
-            if states is not None and not on_table:
-                print("table clear", flush=True)
-                report["end"] = "table clear"
-                break
-            client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=True), 10)
-            grasps = client.fresh_grasps(timeout_s=60)
-            if grasps is None or not grasps.grasps:
-                print(f"no grasp scored >= {min_score_n:.1f} N detected: round ends", flush=True)
-                report["end"] = "no grasp detected"
-                break
-            save_scene_png(client, grasps, out / f"attempt_{len(report['attempts']) + 1:02d}.png")
-            # While the arm moves nobody needs new views: fusing and detecting them would
-            # take CPU from the physics. (Paused only now: the executor wants a TSDF
-            # younger than its max_tsdf_age_s.)
-            client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=False), 10)
-            # Best-ranked first; a grasp the executor refuses before moving (hand in
-            # collision with the TSDF, unreachable) is no attempt: try the next one.
-            t0 = time.monotonic()
-            client.modes_seen = {}
-            for rank, top in enumerate(grasps.grasps):
-                request = ExecuteGrasp.Request(use_index=False, grasp=top)
-                request.header = grasps.header
-                response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
-                if response.result_code not in REFUSED_BEFORE_MOTION:
-                    break
-            if response.result_code in REFUSED_BEFORE_MOTION:
-                print(f"none of the {len(grasps.grasps)} grasps passes the executor's checks "
-                      f"(last: {response.message}): round ends", flush=True)
-                report["end"] = "no executable grasp"
-                break
-            result = RESULT_NAMES.get(response.result_code, str(response.result_code))
-            if response.result_code in FAULTS:
-                print(f"executor fault on grasp #{rank + 1}: {result} ({response.message}): round ends", flush=True)
-                report["end"] = f"executor fault: {result}"
-                report["fault"] = response.message
-                break
-            after = client.states_after(1.0)
-            truth, lifted, mode = judge(after)
-            pp, qq = top.pose.position, top.pose.orientation
-            # The grasped object: the lifted one, else the one nearest the grasp before it
-            # (a dropped object may have rolled anywhere since).
-            target = lifted[0] if lifted else (states.names[nearest_object(states, (pp.x, pp.y, pp.z))]
-                                               if states is not None and states.names else "")
-            mass = dict(zip(states.names, states.mass_kg)).get(target, args.mass_kg) if states is not None else args.mass_kg
-            # The mode the contacts showed while it was in the hand (4 Hz samples during
-            # the execution), also for an object lost later in the lift.
-            mode = mode or client.modes_seen.get(target, "")
-            weight_n = mass * G_MPS2
-            score = float(top.gravity_rejection_score)
-            attempt = {"rank": rank, "score_n": score, "validness": float(top.validness),
-                       "all_scores_n": [float(g.gravity_rejection_score) for g in grasps.grasps],
-                       "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
-                       "object": target, "weight_n": round(weight_n, 2), "mode": mode,
-                       "result": result, "message": response.message,
-                       "lifted": lifted, "executor_success": bool(response.success), "ground_truth_lifted": truth,
-                       "success": bool(response.success) and truth, "wall_s": round(time.monotonic() - t0, 1)}
-            report["attempts"].append(attempt)
-            k = len(report["attempts"])
-            print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
-                  f"({score / weight_n:.1f}x), {mode + ' grasp' if mode else 'never in the hand'} -> "
-                  f"{'SUCCESS' if attempt['success'] else 'FAIL'} "
-                  f"({result}: {response.message})", flush=True)
-            if bool(response.success) != truth:
-                error = (f"attempt {k}: the executor said {result} but the sim's ground truth says "
-                         + (f"{', '.join(lifted)} is lifted" if truth else "nothing is lifted"))
-                report["errors"].append(error)
-                print(f"ERROR: {error}", flush=True)
-            for name in lifted:
-                client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
-            failures = 0 if attempt["success"] else failures + 1
+        states = client.states_after(0.0)
+        if states is None:
+            raise SystemExit("demo: the sim publishes no object_states")
+        n_objects = len(states.names)
+        report["objects"] = list(states.names)
+        cell = DemoCell(client, args, min_score_n, out, report)
+        # The benchmark's rules: when a round ends, what counts as an attempt.
+        record = clear_table(cell, n_objects)
+        report.update(record)  # end, attempts, fell_off (+ fault)
+        end_line = {"table_clear": "table clear",
+                    "consecutive_failures": f"{CONSECUTIVE_FAILURES_END} failures in a row: round ends",
+                    "attempt_limit": f"{len(record['attempts'])} attempts: round ends",
+                    "no_grasp_detected": f"no grasp scored >= {min_score_n:.1f} N detected: round ends",
+                    "no_feasible_grasp": f"none of the {cell.grasps_detected} grasps passes the executor's checks "
+                                         f"(last: {cell.last_refusal}): round ends"}.get(record["end"])
+        if end_line:
+            print(end_line, flush=True)
         rclpy.try_shutdown()
     finally:
         procs.stop()
     successes = sum(a["success"] for a in report["attempts"])
-    attempts = max(len(report["attempts"]), 1)
-    report["SR"] = successes / attempts
-    report["CR"] = successes / max(n_objects or args.objects, 1)
+    report["SR"], report["CR"] = success_rates(successes, len(report["attempts"]), n_objects or args.objects,
+                                               empty=0.0)
     report["wall_s"] = round(time.monotonic() - t_start, 1)
     (out / "report.json").write_text(json.dumps(report, indent=1))
     if report["attempts"]:
