@@ -3,6 +3,7 @@ the summaries and the SR/CR-vs-weight plot."""
 
 from __future__ import annotations
 
+import io
 import json
 import math
 
@@ -129,8 +130,8 @@ def _ci(ci):
 
 
 def plot(rows, methods, path):
-    import io
-
+    # matplotlib here, not at the top: every round's worker process imports this module
+    # (through rounds) and never plots; only the parent draws this one figure.
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -3,6 +3,8 @@ over methods x weights x scenes (`run_benchmark`): resumable, one atomic JSON pe
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import contextlib
 import dataclasses
 import json
 import pathlib
@@ -191,8 +193,6 @@ def _guarded_round(task):
 class _InProcess:
     """A sequential executor (workers=0): for tests and debugging."""
     def submit(self, fn, *args):
-        import concurrent.futures as cf
-
         f = cf.Future()
         try:
             f.set_result(fn(*args))
@@ -202,8 +202,6 @@ class _InProcess:
 
 
 def _executor(workers, scheduler):
-    import contextlib
-
     if workers == 0 and not scheduler:
         return contextlib.nullcontext(_InProcess())
     return make_executor(workers, scheduler)

@@ -37,8 +37,6 @@ import argparse
 import json
 import os
 import pathlib
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -46,9 +44,11 @@ import time
 
 import numpy as np
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
 from geometry_msgs.msg import PoseStamped
+from matplotlib.figure import Figure
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
@@ -56,6 +56,7 @@ from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
 
 from ..benchmark.clearing import CONSECUTIVE_FAILURES_END, Fault, Refused, clear_table, success_rates
+from .processes import Processes, installed
 
 REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Response.UNREACHABLE)
 # The executor disarms on these: a robot would wait for a person, so the round ends.
@@ -66,56 +67,6 @@ G_MPS2 = 9.81
 
 RESULT_NAMES = {getattr(ExecuteGrasp.Response, n): n for n in dir(ExecuteGrasp.Response)
                 if n.isupper() and isinstance(getattr(ExecuteGrasp.Response, n), int)}
-
-
-def installed(package, name):
-    prefix = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", ".")) / "ros_ws" / "install"
-    path = prefix / package / "lib" / package / name
-    if not path.exists():
-        raise SystemExit(f"demo: {path} is not installed; run 'make build'")
-    return str(path)
-
-
-class Processes:
-    """Child processes in their own process groups, stopped with SIGINT then SIGKILL."""
-
-    def __init__(self, log_dir):
-        self.log_dir, self.procs = pathlib.Path(log_dir), []
-
-    def start(self, name, cmd):
-        log = open(self.log_dir / f"{name}.log", "wb")
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        self.procs.append((name, proc, log))
-        return proc
-
-    def wait_for(self, name, text, timeout_s):
-        path = self.log_dir / f"{name}.log"
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if text in path.read_text(errors="replace"):
-                return
-            if any(n == name and p.poll() is not None for n, p, _ in self.procs):
-                break
-            time.sleep(0.1)
-        raise SystemExit(f"demo: {name} did not become ready; its log {path} ends:\n"
-                         + path.read_text(errors="replace")[-2000:])
-
-    def stop(self):
-        for sig, wait_s in ((signal.SIGINT, 10), (signal.SIGKILL, 5)):
-            for _, proc, _ in self.procs:
-                if proc.poll() is None:
-                    try:
-                        os.killpg(proc.pid, sig)
-                    except ProcessLookupError:
-                        pass
-            for _, proc, _ in self.procs:
-                try:
-                    proc.wait(wait_s)
-                except subprocess.TimeoutExpired:
-                    pass
-        for _, _, log in self.procs:
-            log.close()
 
 
 class Client:
@@ -189,11 +140,6 @@ class Client:
 def save_scene_png(client, grasps, path):
     """The camera's depth image with the detected TCP positions projected, coloured by
     gravity-rejection score; the executed (top) grasp circled."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from scipy.spatial.transform import Rotation
-
     depth_msg, info, pose = client.depth, client.info, client.camera_pose
     if depth_msg is None or info is None or pose is None:
         return False
@@ -209,7 +155,8 @@ def save_scene_png(client, grasps, path):
     k = info.k
     u = k[0] * p_cam[:, 0] / p_cam[:, 2] + k[2]
     v = k[4] * p_cam[:, 1] / p_cam[:, 2] + k[5]
-    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100)
+    fig = Figure(figsize=(6.4, 4.8), dpi=100)  # no pyplot: no backend, no global figure list
+    ax = fig.subplots()
     ax.imshow(np.where(depth > 0, depth, np.nan), cmap="gray")
     sc = ax.scatter(u, v, c=scores, cmap="viridis", s=18)
     ax.scatter(u[:1], v[:1], s=160, facecolors="none", edgecolors="red", linewidths=2)
@@ -218,7 +165,6 @@ def save_scene_png(client, grasps, path):
     ax.set_title(f"{len(scores)} grasps; executed: {scores[0]:.1f} N" if len(scores) else "no grasps")
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return True
 
 
@@ -239,12 +185,9 @@ def judge(states):
 def save_summary_png(report, path):
     """One page: each attempt's executed score against the object's weight, with every
     detected grasp's score behind it; colour = outcome, label = mode."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     attempts = report["attempts"]
-    fig, ax = plt.subplots(figsize=(8.27, 5.0), dpi=100)
+    fig = Figure(figsize=(8.27, 5.0), dpi=100)
+    ax = fig.subplots()
     for k, a in enumerate(attempts, 1):
         ax.scatter([k] * len(a["all_scores_n"]), a["all_scores_n"], s=12, color="0.75", zorder=1)
         colour = "tab:green" if a["success"] else "tab:red"
@@ -267,7 +210,6 @@ def save_summary_png(report, path):
         fig.text(0.01, 0.01, "ERRORS: " + "; ".join(report["errors"])[:200], color="red", fontsize=7)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
 
 
 class DemoCell:
