@@ -218,8 +218,8 @@ class DemoCell:
     attempt by the executor and by the sim's ground truth, prints it, adds it to the
     report and takes a lifted object out of the scene."""
 
-    def __init__(self, client, args, min_score_n, out, report):
-        self.client, self.args, self.min_score_n, self.out, self.report = client, args, min_score_n, out, report
+    def __init__(self, client, args, out, report):
+        self.client, self.args, self.out, self.report = client, args, out, report
         self.states = client.states  # before the current attempt: the grasped object's name and mass
         self.n_attempts = 0
         self.grasps_detected, self.last_refusal = 0, ""
@@ -343,7 +343,7 @@ def run(args) -> dict:
             raise SystemExit("demo: the sim publishes no object_states")
         n_objects = len(states.names)
         report["objects"] = list(states.names)
-        cell = DemoCell(client, args, min_score_n, out, report)
+        cell = DemoCell(client, args, out, report)
         # The benchmark's rules: when a round ends, what counts as an attempt.
         record = clear_table(cell, n_objects)
         report.update(record)  # end, attempts, fell_off (+ fault)
