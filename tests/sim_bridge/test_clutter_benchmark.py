@@ -12,7 +12,7 @@ import trimesh
 
 from gravgrasp_detector import model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
-from sim_bridge.benchmark import protocol, report, sim_cell
+from sim_bridge.benchmark import clearing, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
 
 pytestmark = pytest.mark.drake
@@ -25,24 +25,25 @@ def grasp(score):
 
 
 class ScriptedCell:
-    """objects_on_table shrinks by one per success; outcomes come from a script."""
+    """objects_on_table shrinks by one per success; outcomes come from a script; every
+    view detects `scores` (ranked as given)."""
 
-    def __init__(self, n_objects, outcomes, infeasible_ranks=()):
+    def __init__(self, n_objects, outcomes, scores=(3.0,), infeasible_ranks=()):
         self.left = [f"o{i}" for i in range(n_objects)]
         self.outcomes = list(outcomes)
+        self.scores = scores
         self.infeasible_ranks = set(infeasible_ranks)
         self.executed = []
 
     def objects_on_table(self):
         return list(self.left)
 
-    def observe(self):
-        return (np.zeros((4, 4, 4)), 0.0075, np.zeros(3))
-
-    def feasible(self, g, tsdf):
-        return "out of reach" if g.score_n in self.infeasible_ranks else ""
+    def detect(self):
+        return (np.zeros((4, 4, 4)), 0.0075, np.zeros(3)), [grasp(s) for s in self.scores]
 
     def execute(self, g, tsdf):
+        if g.score_n in self.infeasible_ranks:
+            raise clearing.Refused("out of reach")
         self.executed.append(g.score_n)
         ok = self.outcomes.pop(0)
         lifted = [self.left.pop(0)] if ok else []
@@ -52,34 +53,30 @@ class ScriptedCell:
         return []
 
 
-def ranked(*scores):
-    return lambda tsdf: [grasp(s) for s in scores]
-
-
 def test_round_ends_when_the_table_is_clear():
     cell = ScriptedCell(3, [True, True, True])
-    r = protocol.clear_table(cell, ranked(3.0), 3)
+    r = clearing.clear_table(cell, 3)
     assert r["end"] == "table_clear" and len(r["attempts"]) == 3
     assert all(a["success"] for a in r["attempts"])
 
 
 def test_round_ends_after_two_consecutive_failures_only():
     cell = ScriptedCell(5, [False, True, False, False, True])
-    r = protocol.clear_table(cell, ranked(3.0), 5)
+    r = clearing.clear_table(cell, 5)
     assert r["end"] == "consecutive_failures"
     assert [a["success"] for a in r["attempts"]] == [False, True, False, False]  # one failure did not end it
 
 
 def test_round_ends_when_nothing_is_detected_or_feasible():
-    r = protocol.clear_table(ScriptedCell(2, []), ranked(), 2)
+    r = clearing.clear_table(ScriptedCell(2, [], scores=()), 2)
     assert r["end"] == "no_grasp_detected" and r["attempts"] == []
-    r = protocol.clear_table(ScriptedCell(2, [], infeasible_ranks={5.0, 4.0}), ranked(5.0, 4.0), 2)
+    r = clearing.clear_table(ScriptedCell(2, [], scores=(5.0, 4.0), infeasible_ranks={5.0, 4.0}), 2)
     assert r["end"] == "no_feasible_grasp" and r["attempts"] == []
 
 
 def test_the_best_feasible_grasp_is_executed():
-    cell = ScriptedCell(1, [True], infeasible_ranks={5.0})
-    r = protocol.clear_table(cell, ranked(5.0, 4.0, 3.0), 1)
+    cell = ScriptedCell(1, [True], scores=(5.0, 4.0, 3.0), infeasible_ranks={5.0})
+    r = clearing.clear_table(cell, 1)
     assert cell.executed == [4.0]
     assert r["attempts"][0]["rank"] == 1 and r["attempts"][0]["skipped_infeasible"] == 1
 
@@ -91,8 +88,20 @@ def test_attempt_limit_bounds_a_round():
             ok = len(self.executed) % 2 == 0
             return {"outcome": "success" if ok else "dropped", "reason": "scripted", "lifted": []}
 
-    r = protocol.clear_table(NeverClears(1, []), ranked(1.0), 1, attempts_per_object=3)
+    r = clearing.clear_table(NeverClears(1, [], scores=(1.0,)), 1, attempts_per_object=3)
     assert r["end"] == "attempt_limit" and len(r["attempts"]) == 3
+
+
+def test_a_fault_ends_the_round_without_an_attempt():
+    class Faulty(ScriptedCell):
+        def execute(self, g, tsdf):
+            if self.executed:
+                raise clearing.Fault("ARM_FAULT: protective stop")
+            return super().execute(g, tsdf)
+
+    r = clearing.clear_table(Faulty(3, [False]), 3)
+    assert r["end"] == "executor_fault" and r["fault"] == "ARM_FAULT: protective stop"
+    assert len(r["attempts"]) == 1
 
 
 # -- statistics -----------------------------------------------------------------------
@@ -105,6 +114,12 @@ def test_wilson_interval():
     lo, hi = report.wilson_interval(10, 10)
     assert hi == 1.0 and lo == pytest.approx(0.7225, abs=1e-4)
     assert all(math.isnan(v) for v in report.wilson_interval(0, 0))
+
+
+def test_success_rates():
+    assert clearing.success_rates(2, 4, 5) == (0.5, 0.4)
+    assert all(math.isnan(v) for v in clearing.success_rates(0, 0, 0))
+    assert clearing.success_rates(0, 0, 3, empty=0.0) == (0.0, 0.0)
 
 
 # -- objects and models ---------------------------------------------------------------
@@ -238,7 +253,8 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     X[:3, 3] = [0.15, 0.15, 0.051 - mesh.bounds[0][2]]
     scene = {"scene_id": "packed_t", "arrangement": "packed",
              "objects": [{"source": dataclasses.asdict(source), "name": "c", "X_task_object": X.tolist()}]}
-    cell = sim_cell.SimCell(scene, 0.5, protocol.Protocol(time_step_s=0.002), tsdf.TSDFVolume(resolution=40))
+    cell = sim_cell.SimCell(scene, 0.5, protocol.Protocol(time_step_s=0.002), tsdf.TSDFVolume(resolution=40),
+                            detect=lambda tsdf: [])
     view = cell.observe()
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R_TOP_DOWN, [0.15, 0.15, 0.05 + height_m - 0.025]

@@ -1,6 +1,5 @@
 """The clutter-removal protocol (paper Sec. V-B): the methods and weights, the `Protocol`
-settings, the object pool and scenes, and the round's rules (`clear_table`), which the
-in-process benchmark and the ROS demo both run."""
+settings, the object pool and scenes. The round's rules are `clearing.clear_table`."""
 
 from __future__ import annotations
 
@@ -13,6 +12,7 @@ from ..datagen.object_grasps import mesh_sources, procedural_sources
 from ..physics.objects import ObjectError
 from ..physics.scenes import ARRANGEMENTS, arrange
 from ..world import BARE_MESH_DENSITY_KG_M3, STROKE_M
+from .clearing import ATTEMPTS_PER_OBJECT
 
 # method -> model file name in --models-dir (the lead's training runs write these)
 METHODS = {
@@ -33,7 +33,6 @@ QUICK_ABLATION_WEIGHTS_KG = (0.1,)
 PROCEDURAL_SEED = 1000  # training objects use procedural seed 0
 PROCEDURAL_POOL = 100
 OBJECTS_PER_SCENE = 5
-CONSECUTIVE_FAILURES_END = 2
 LIFTED_MIN_HEIGHT_M = 0.05
 SCHEMA_VERSION = 1
 MAX_POOLS = 3  # worker pools started before a run gives up on repeated native crashes
@@ -56,7 +55,7 @@ class Protocol:
     # SAP relaxation time; None = SimSettings' choice (0 at dt 1 ms)
     relaxation_time_s: float | None = None
     grip_force_n: float = 40.0     # the paper's
-    attempts_per_object: int = 3
+    attempts_per_object: int = ATTEMPTS_PER_OBJECT
 
 
 # objects and scenes
@@ -140,48 +139,3 @@ def make_scene(task: SceneDrawTask) -> dict:
             "objects": [{"source": dataclasses.asdict(sources[i]), "name": specs[i].name,
                          "X_task_object": np.asarray(X).round(9).tolist()} for i, X in zip(keep, poses)],
             "dropped_by_arrangement": [specs[i].name for i in range(len(specs)) if i not in keep]}
-
-
-# the round's rules
-
-
-def clear_table(cell, detect, n_objects: int, attempts_per_object: int = 3) -> dict:
-    """Clear a table (paper/VGN protocol). `cell`: objects_on_table(), observe(),
-    feasible(grasp, tsdf), execute(grasp, tsdf), remove_fallen(); `detect(tsdf)` ->
-    ranked grasps (best first). -> {end, attempts, fell_off}."""
-    attempts, fell_off, failures = [], [], 0
-    max_attempts = attempts_per_object * n_objects
-    while True:
-        if not cell.objects_on_table():
-            end = "table_clear"
-            break
-        if failures >= CONSECUTIVE_FAILURES_END:
-            end = "consecutive_failures"
-            break
-        if len(attempts) >= max_attempts:
-            end = "attempt_limit"
-            break
-        tsdf = cell.observe()
-        grasps = detect(tsdf)
-        if not grasps:
-            end = "no_grasp_detected"
-            break
-        chosen, rejected = None, []
-        for rank, g in enumerate(grasps):
-            why = cell.feasible(g, tsdf)
-            if not why:
-                chosen = (rank, g)
-                break
-            rejected.append(why)
-        if chosen is None:
-            end = "no_feasible_grasp"
-            break
-        rank, g = chosen
-        result = cell.execute(g, tsdf)
-        fell_off += cell.remove_fallen()
-        success = result["outcome"] == "success"
-        attempts.append({"rank": rank, "grasps_detected": len(grasps), "skipped_infeasible": len(rejected),
-                         "pose": np.asarray(g.pose).round(6).tolist(), "score": round(float(g.score_n), 4),
-                         "validness": round(float(g.validness), 4), "success": success, **result})
-        failures = 0 if success else failures + 1
-    return {"end": end, "attempts": attempts, "fell_off": fell_off}

@@ -28,9 +28,14 @@ import pathlib
 import sys
 
 import numpy as np
+import torch
 import trimesh
+from matplotlib import colormaps
+from matplotlib.figure import Figure
 
-from gravgrasp_detector import atomic_files
+from gravgrasp_detector import atomic_files, model_file, rotation, tsdf
+from gravgrasp_detector.model_file import ModelFileError
+from gravgrasp_detector.tsdf import CameraIntrinsics
 
 from ..physics.depth_rendering import DepthRenderer, look_at
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
@@ -82,8 +87,6 @@ def table_mesh():
 def render_scene(volume):
     """Render the paper's scene from its camera and fuse it into `volume`
     (a gravgrasp_detector.tsdf.TSDFVolume). Returns (depth [m], T_task_camera)."""
-    from gravgrasp_detector.tsdf import CameraIntrinsics
-
     renderer = DepthRenderer([table_mesh()] + [m for _, m in object_meshes()])
     intrinsics = CameraIntrinsics(IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX,
                                   (IMAGE_WIDTH - 1) / 2, (IMAGE_HEIGHT - 1) / 2)
@@ -96,10 +99,6 @@ def render_scene(volume):
 def output_volumes(model, grid):
     """Dense network outputs on a (R, R, R) grid: score_n [N], validness (probability)
     and approach (R, R, R, 3), the unit e_z of the predicted TCP frame in the task frame."""
-    import torch
-
-    from gravgrasp_detector import rotation
-
     with torch.inference_mode():
         out = model(torch.as_tensor(np.asarray(grid, np.float32))[None, None])
         R = rotation.reconstruct(model.rotation_representation, out["rotation"][0].permute(1, 2, 3, 0).float())
@@ -142,12 +141,6 @@ def cross_sections(axis, position_scene_m):
 
 
 def plot_slice(path, axis, position_scene_m, index, grid, outputs, voxel_size_m, validness_threshold, title):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
-
     a = _AXES.index(axis)
     u, v = [k for k in range(3) if k != a]  # in-plane axes, plotted as (horizontal, vertical)
     res = grid.shape[0]
@@ -163,7 +156,8 @@ def plot_slice(path, axis, position_scene_m, index, grid, outputs, voxel_size_m,
     sections = cross_sections(axis, position_scene_m)
     valid = valid_2d >= validness_threshold
 
-    fig, axes = plt.subplots(1, 3, figsize=FIG_SIZE_IN, dpi=DPI)
+    fig = Figure(figsize=FIG_SIZE_IN, dpi=DPI)  # no pyplot: no backend, no global figure list
+    axes = fig.subplots(1, 3)
 
     def show(ax, image, cmap, vmin, vmax, label):
         # arrays are [u, v]; imshow wants rows = vertical axis
@@ -183,7 +177,7 @@ def plot_slice(path, axis, position_scene_m, index, grid, outputs, voxel_size_m,
         return im
 
     # Input TSDF: 0 (never observed or outside the truncation band) is its own grey.
-    tsdf_cmap = plt.get_cmap("RdBu").copy()
+    tsdf_cmap = colormaps["RdBu"].copy()
     tsdf_cmap.set_bad("0.6")
     show(axes[0], np.ma.masked_equal(tsdf_2d, 0.0), tsdf_cmap, 0.0, 1.0,
          "TSDF value (0.5 surface, >0.5 free, <0.5 behind)")
@@ -214,12 +208,8 @@ def plot_slice(path, axis, position_scene_m, index, grid, outputs, voxel_size_m,
 
 
 def plot_depth(path, depth):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=DPI)
+    fig = Figure(figsize=(6.4, 4.8), dpi=DPI)
+    ax = fig.subplots()
     im = ax.imshow(np.ma.masked_equal(depth, 0.0), cmap="viridis")
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("depth [m]")
     ax.set_title(f"depth image, camera at scene {tuple(CAMERA_SCENE_M)} m\nlooking at the table centre",
@@ -230,11 +220,8 @@ def plot_depth(path, depth):
 
 
 def _save_atomically(fig, path):
-    import matplotlib.pyplot as plt
-
     fig.tight_layout()
     atomic_files.save_figure(path, fig, dpi=DPI)
-    plt.close(fig)
 
 
 def slice_file_name(axis, position_scene_m):
@@ -243,8 +230,6 @@ def slice_file_name(axis, position_scene_m):
 
 def run(model_path, out_dir, validness_threshold=0.5):
     """Render, fuse, run the model, write the PNGs; returns their paths."""
-    from gravgrasp_detector import model_file, tsdf
-
     model, metadata = model_file.load_model(model_path)
     t = metadata["tsdf"]
     if abs(float(t.get("size_m", VOLUME_SIZE_M)) - VOLUME_SIZE_M) > 1e-6:
@@ -288,8 +273,6 @@ def main(argv=None):
     p.add_argument("--validness-threshold", type=float, default=0.5,
                    help="voxels at or above this validness are circled (detect's default: 0.5)")
     args = p.parse_args(argv)
-    from gravgrasp_detector.model_file import ModelFileError
-
     if not 0.0 <= args.validness_threshold <= 1.0:
         print(f"qualitative: --validness-threshold {args.validness_threshold} is not in [0, 1]", file=sys.stderr)
         return 2

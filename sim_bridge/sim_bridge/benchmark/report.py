@@ -3,6 +3,7 @@ the summaries and the SR/CR-vs-weight plot."""
 
 from __future__ import annotations
 
+import io
 import json
 import math
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from gravgrasp_detector import atomic_files
 from ..physics.scenes import ARRANGEMENTS
+from .clearing import success_rates
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, weight_key
 
 # statistics
@@ -39,11 +41,12 @@ def summarize(rounds: list, plan: dict) -> list:
             s = sum(r["successes"] for r in rs)
             a = sum(len(r["attempts"]) for r in rs)
             o = sum(r["n_objects"] for r in rs)
+            sr, cr = success_rates(s, a, o)
             rows.append({"method": method, "mass_kg": float(w), "rounds": len(rs), "objects": o, "attempts": a,
                          "left_before_start": sum(len(r.get("left_before_start", [])) for r in rs),
                          "fell_off": sum(len(r["fell_off"]) for r in rs),
-                         "successes": s, "SR": s / a if a else math.nan, "SR_ci95": wilson_interval(s, a),
-                         "CR": s / o if o else math.nan, "CR_ci95": wilson_interval(s, o)})
+                         "successes": s, "SR": sr, "SR_ci95": wilson_interval(s, a),
+                         "CR": cr, "CR_ci95": wilson_interval(s, o)})
     return rows
 
 
@@ -127,8 +130,8 @@ def _ci(ci):
 
 
 def plot(rows, methods, path):
-    import io
-
+    # matplotlib here, not at the top: every round's worker process imports this module
+    # (through rounds) and never plots; only the parent draws this one figure.
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

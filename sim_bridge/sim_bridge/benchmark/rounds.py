@@ -3,6 +3,8 @@ over methods x weights x scenes (`run_benchmark`): resumable, one atomic JSON pe
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import contextlib
 import dataclasses
 import json
 import pathlib
@@ -18,8 +20,9 @@ from gravgrasp_detector.tsdf import TSDFVolume
 
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
+from .clearing import clear_table
 from .protocol import (ABLATION_METHODS, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, Protocol,
-                       SceneDrawTask, clear_table, make_scene, object_pool, scene_ids, weight_key)
+                       SceneDrawTask, make_scene, object_pool, scene_ids, weight_key)
 from .report import write_outputs
 from .sim_cell import SimCell
 
@@ -62,13 +65,12 @@ def run_round(task: RoundTask) -> dict:
     model, metadata = load_model(task.model_path)
     volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
     check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
-    cell = SimCell(task.scene, task.mass_kg, task.protocol, volume)
+    cell = SimCell(task.scene, task.mass_kg, task.protocol, volume, make_detector(model, metadata, task.protocol))
     settle_s = cell.settle()
     left_before_start = cell.remove_fallen()  # not counted: no method could have grasped them
     names = cell.objects_on_table()
     n_objects = len(names)
-    record = clear_table(cell, make_detector(model, metadata, task.protocol), n_objects,
-                         task.protocol.attempts_per_object)
+    record = clear_table(cell, n_objects, task.protocol.attempts_per_object)
     return {"schema_version": SCHEMA_VERSION, "method": task.method, "model_sha256": task.model_sha256,
             "target": training_target(metadata), "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
             "objects": names, "n_objects": n_objects, "left_before_start": left_before_start,
@@ -191,8 +193,6 @@ def _guarded_round(task):
 class _InProcess:
     """A sequential executor (workers=0): for tests and debugging."""
     def submit(self, fn, *args):
-        import concurrent.futures as cf
-
         f = cf.Future()
         try:
             f.set_result(fn(*args))
@@ -202,8 +202,6 @@ class _InProcess:
 
 
 def _executor(workers, scheduler):
-    import contextlib
-
     if workers == 0 and not scheduler:
         return contextlib.nullcontext(_InProcess())
     return make_executor(workers, scheduler)

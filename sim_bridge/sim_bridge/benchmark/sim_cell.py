@@ -1,6 +1,6 @@
 """The simulated cell the benchmark runs a round in: the grasp executor's arm and gripper
 adapters over a SimWorld in simulated time (`SimArm`, `SimGripper`), and `SimCell`, which
-clear_table drives."""
+clearing.clear_table drives."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, Gri
 from ..datagen.object_grasps import ObjectSource
 from ..physics.contact import SimSettings
 from ..world import STROKE_M, SceneConfig, SimWorld, WorldSettings
+from .clearing import Refused
 from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
 
 # the simulated cell: executor adapters in simulated time
@@ -70,8 +71,9 @@ class SimGripper:
 
 
 class SimCell:
-    """One scene in Drake with the executor; what `clear_table` drives."""
-    def __init__(self, scene: dict, mass_kg: float, protocol: Protocol, volume):
+    """One scene in Drake with the executor; what `clear_table` drives. `detect(tsdf)` ->
+    ranked grasps (best first)."""
+    def __init__(self, scene: dict, mass_kg: float, protocol: Protocol, volume, detect):
 
         objects = tuple((ObjectSource(**o["source"]).load(), np.asarray(o["X_task_object"]))
                         for o in scene["objects"])
@@ -81,7 +83,7 @@ class SimCell:
                                  max_speed_mps=protocol.free_space_speed_mps)
         self.world = SimWorld(SceneConfig(objects=objects, object_mass_kg=mass_kg,
                                           arrangement=scene["arrangement"]), settings)
-        self.protocol, self.volume = protocol, volume
+        self.protocol, self.volume, self._detect = protocol, volume, detect
         # The executor's limits are the ROS node's defaults but the free-space speed;
         # grip force per the paper.
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
@@ -126,6 +128,11 @@ class SimCell:
         self.volume.integrate(depth, intrinsics, T_task_camera)
         return self.volume.grid(), self.volume.voxel_size_m, self.volume.origin.copy()
 
+    def detect(self) -> tuple:
+        """(tsdf, ranked grasps) of a fresh view."""
+        tsdf = self.observe()
+        return tsdf, self._detect(tsdf)
+
     def feasible(self, grasp, tsdf) -> str:
         """'' if the executor would start this grasp, else why not (its own checks)."""
         poses = plan_poses(grasp.pose, self.limits.pregrasp_distance_m, self.limits.lift_height_m)
@@ -141,7 +148,11 @@ class SimCell:
 
     def execute(self, grasp, tsdf) -> dict:
         """Run the grasp, hold, shake, judge by ground truth, remove what was lifted,
-        open and go home. -> {outcome, reason, lifted}."""
+        open and go home. -> {pose, score, validness, outcome, reason, lifted}. Raises
+        Refused for a grasp the executor would not start (`feasible`)."""
+        why = self.feasible(grasp, tsdf)
+        if why:
+            raise Refused(why)
         p = self.protocol
         self.executor.arm_motion(True)  # a fault disarms it; each attempt starts armed
         result = self.executor.execute(grasp.pose, tsdf=tsdf)
@@ -163,7 +174,9 @@ class SimCell:
             up[2, 3] = self.home[2, 3]  # straight up first if the direct path is blocked
             self.world.move_tcp(up, self.limits.max_speed_mps, 30.0)
             self.world.move_tcp(self.home, self.limits.max_speed_mps, 30.0)
-        return {"outcome": outcome, "reason": reason, "lifted": lifted if outcome == "success" else []}
+        return {"pose": np.asarray(grasp.pose).round(6).tolist(), "score": round(float(grasp.score_n), 4),
+                "validness": round(float(grasp.validness), 4),
+                "outcome": outcome, "reason": reason, "lifted": lifted if outcome == "success" else []}
 
     def _hold_and_shake(self) -> tuple:
         p = self.protocol

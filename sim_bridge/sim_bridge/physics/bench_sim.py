@@ -20,6 +20,7 @@ import numpy as np
 
 from .contact import SimSettings
 from .grasp_simulation import GraspSimulator
+from .objects import procedural_object
 
 # The paper: 12-18 h per object on an AWS m5.2xlarge (8 vCPU).
 PAPER_CORE_HOURS_PER_OBJECT = (12 * 8, 18 * 8)
@@ -37,8 +38,6 @@ def _job(args):
     """One worker: build the diagram once, evaluate `n` grasps (small offsets along the
     cylinder axis so runs are not identical), return per-eval wall times and outcomes."""
     mode, dt, rate, n, contact = args
-    from .objects import procedural_object
-
     cyl = procedural_object("cylinder", (0.065, 0.2), mass_kg=0.5)
     sim = GraspSimulator(cyl, SimSettings(time_step_s=dt, force_ramp_rate_n_s=rate, contact_model=contact))
     walls, cpus, modes, scores = [], [], [], []

@@ -15,11 +15,17 @@ import dataclasses
 import sys
 
 import numpy as np
+import trimesh
+from pydrake.geometry import Box, Mesh
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from .contact import SimSettings
+from .disturbance_rejection import DIRECTION_NAMES
+from .grasp_simulation import GraspSimulator
+from .objects import ObjectError, parse_object_arg
 
 
 def parse_pose(text: str) -> np.ndarray:
-    from pydrake.math import RigidTransform, RollPitchYaw
-
     try:
         v = [float(s) for s in text.replace(" ", ",").split(",") if s]
     except ValueError:
@@ -32,13 +38,12 @@ def parse_pose(text: str) -> np.ndarray:
 def save_picture(sim, path: str, title: str):
     """Matplotlib drawing of the settled grasp: hand collision geometry (hulls, pads)
     and the object, in the TCP frame, seen along x and along y."""
+    # matplotlib only for --image (an optional picture): its import costs seconds.
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import trimesh
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-    from pydrake.geometry import Box, Mesh
 
     root = sim.simulator.get_context()
     sg_ctx = sim.scene_graph.GetMyContextFromRoot(root)
@@ -83,11 +88,6 @@ def save_picture(sim, path: str, title: str):
 
 
 def main(argv=None) -> int:
-    from .disturbance_rejection import DIRECTION_NAMES
-    from .grasp_simulation import GraspSimulator
-    from .contact import SimSettings
-    from .objects import ObjectError, parse_object_arg
-
     p = argparse.ArgumentParser(prog="evaluate_grasp", description=__doc__.split("\n\n")[0])
     p.add_argument("--object", required=True,
                    help="box:X,Y,Z-like 'kind:AxBxC' in metres (box, cylinder, sphere, capsule, "

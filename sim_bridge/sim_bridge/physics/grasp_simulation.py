@@ -25,7 +25,7 @@ from . import hand_model
 from .actuators import GripForceController, driver_torque_nm
 from .contact import SimSettings, proximity_properties
 from .disturbance_rejection import DIRECTIONS_TCP, ForceRampDisturbance, measure_departure_force
-from .objects import ObjectSpec
+from .objects import ObjectSpec, procedural_object
 
 MODES = ("power", "precision", "none")
 
@@ -250,8 +250,6 @@ class GraspSimulator:
 def measure_squeeze_force_n(width_m: float = 0.05, settings: SimSettings | None = None) -> float:
     """Grip-force calibration: close on a free 0.5 kg box `width_m` wide (along y),
     centred between the pads, and return the settled squeeze force [N]."""
-    from .objects import procedural_object
-
     box = procedural_object("box", (0.03, width_m, 0.03), mass_kg=0.5)
     sim = GraspSimulator(box, settings)
     root, reason = sim.close(np.eye(4))

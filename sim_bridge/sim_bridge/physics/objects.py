@@ -3,6 +3,10 @@
 An `ObjectSpec` is a rigid body described by its mass properties and a list of convex
 collision `Part`s in the object frame. Convex pieces keep contact fast and let every
 piece be a compliant hydroelastic body (a non-convex `.obj` would act as its hull).
+
+pydrake (and `contact`, which loads it) is imported inside the two methods that build
+Drake geometry: the datagen's mesh stages use this module in worker processes that never
+simulate, and Drake costs each of them seconds and ~70 MB.
 """
 
 from __future__ import annotations
@@ -50,7 +54,7 @@ class Part:
         return m
 
     def drake_shape(self):
-        from pydrake.geometry import Box, Capsule, Convex, Cylinder, Sphere
+        from pydrake.geometry import Box, Capsule, Convex, Cylinder, Sphere  # lazy: see the module doc
 
         if self.kind == "box":
             return Box(*self.size)
@@ -100,14 +104,15 @@ class ObjectSpec:
         `grasp_simulation.proximity_properties(SimSettings())`) with a per-part
         hydroelastic resolution hint.
         """
-        from pydrake.geometry import ProximityProperties
+        # lazy: see the module doc
+        from pydrake.geometry import Mesh, ProximityProperties
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
-        if proximity_properties is None:
-            from .contact import SimSettings
-            from .contact import proximity_properties as paper_properties
+        from .contact import SimSettings
+        from .contact import proximity_properties as paper_properties
 
+        if proximity_properties is None:
             proximity_properties = paper_properties(SimSettings())
         spec = self if mass_kg is None else self.with_mass(mass_kg)
         name = name or spec.name
@@ -126,8 +131,6 @@ class ObjectSpec:
             if spec.visual_mesh_path is None:
                 plant.RegisterVisualGeometry(body, X, shape, f"{name}_v{k}", [0.85, 0.55, 0.2, 1.0])
         if spec.visual_mesh_path is not None:
-            from pydrake.geometry import Mesh
-
             plant.RegisterVisualGeometry(body, RigidTransform(), Mesh(spec.visual_mesh_path),
                                          f"{name}_visual", [0.85, 0.55, 0.2, 1.0])
         return body

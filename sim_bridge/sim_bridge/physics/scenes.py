@@ -15,7 +15,9 @@ Objects that end up outside the workspace are removed and the rest settled again
 
 The Drake model: one MultibodyPlant (point contact, SAP, gravity) with the table
 welded to the world and every object a free body; `build_scene_diagram` makes the
-diagram, `settle` simulates it until every body is at rest.
+diagram, `settle` simulates it until every body is at rest. (Both import pydrake
+themselves: the datagen imports this module for the table and the arrangements in
+worker processes that never simulate, and Drake costs each of them seconds and ~70 MB.)
 """
 
 from dataclasses import dataclass
@@ -54,6 +56,7 @@ def build_scene_diagram(objects, settings=SceneSettings(), pile_box_m=None):
     as free bodies under gravity.  pile_box_m: inner width of a temporary square box
     around the table centre that keeps a pile together while it falls (VGN does the
     same), or None."""
+    # pydrake here, not at the top: see the module doc
     from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
                                   AddRigidHydroelasticProperties, Box, ProximityProperties)
     from pydrake.math import RigidTransform
@@ -92,6 +95,7 @@ def build_scene_diagram(objects, settings=SceneSettings(), pile_box_m=None):
 def settle(scene: SceneDiagram, X_task_objects, settings=SceneSettings()):
     """Simulate from the given object poses until at rest; returns the poses (list of 4x4)
     and whether it settled within max_settle_time_s."""
+    # pydrake here, not at the top: see the module doc
     from pydrake.math import RigidTransform
     from pydrake.systems.analysis import Simulator
 

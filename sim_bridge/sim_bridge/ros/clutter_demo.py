@@ -3,10 +3,11 @@
 Starts the sim bridge (`sim`) and the deployed stack (`stack`: tsdf + detect +
 execute) as separate processes talking over DDS and Modbus RTU, exactly as on a
 robot, then repeats: fresh TSDF of the scene -> top grasp from /grasps ->
-/execute_grasp -> a lifted object is taken out of the scene (as the paper's
-clutter-removal protocol does). A round ends when the table is clear, after 2
-consecutive failures, when no grasp is detected, or when the executor reports a
-fault (it disarms; a person would look).
+/execute_grasp -> a lifted object is taken out of the scene. The round is the clutter
+benchmark's (`benchmark.clearing.clear_table`, the paper's clutter-removal protocol):
+it ends when the table is clear, after 2 consecutive failures, when no grasp is
+detected or none passes the executor's checks, or when the executor reports a fault
+(it disarms; a person would look); SR and CR are counted as the benchmark does.
 
 Gravity-aware: every object weighs `--mass-kg` (1 kg by default), and the detector
 only returns grasps scored at least `--safety` x its weight; each attempt prints the
@@ -36,8 +37,6 @@ import argparse
 import json
 import os
 import pathlib
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -45,14 +44,19 @@ import time
 
 import numpy as np
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
 from geometry_msgs.msg import PoseStamped
+from matplotlib.figure import Figure
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
+
+from ..benchmark.clearing import CONSECUTIVE_FAILURES_END, Fault, Refused, clear_table, success_rates
+from .processes import Processes, installed
 
 REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Response.UNREACHABLE)
 # The executor disarms on these: a robot would wait for a person, so the round ends.
@@ -63,56 +67,6 @@ G_MPS2 = 9.81
 
 RESULT_NAMES = {getattr(ExecuteGrasp.Response, n): n for n in dir(ExecuteGrasp.Response)
                 if n.isupper() and isinstance(getattr(ExecuteGrasp.Response, n), int)}
-
-
-def installed(package, name):
-    prefix = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", ".")) / "ros_ws" / "install"
-    path = prefix / package / "lib" / package / name
-    if not path.exists():
-        raise SystemExit(f"demo: {path} is not installed; run 'make build'")
-    return str(path)
-
-
-class Processes:
-    """Child processes in their own process groups, stopped with SIGINT then SIGKILL."""
-
-    def __init__(self, log_dir):
-        self.log_dir, self.procs = pathlib.Path(log_dir), []
-
-    def start(self, name, cmd):
-        log = open(self.log_dir / f"{name}.log", "wb")
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        self.procs.append((name, proc, log))
-        return proc
-
-    def wait_for(self, name, text, timeout_s):
-        path = self.log_dir / f"{name}.log"
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if text in path.read_text(errors="replace"):
-                return
-            if any(n == name and p.poll() is not None for n, p, _ in self.procs):
-                break
-            time.sleep(0.1)
-        raise SystemExit(f"demo: {name} did not become ready; its log {path} ends:\n"
-                         + path.read_text(errors="replace")[-2000:])
-
-    def stop(self):
-        for sig, wait_s in ((signal.SIGINT, 10), (signal.SIGKILL, 5)):
-            for _, proc, _ in self.procs:
-                if proc.poll() is None:
-                    try:
-                        os.killpg(proc.pid, sig)
-                    except ProcessLookupError:
-                        pass
-            for _, proc, _ in self.procs:
-                try:
-                    proc.wait(wait_s)
-                except subprocess.TimeoutExpired:
-                    pass
-        for _, _, log in self.procs:
-            log.close()
 
 
 class Client:
@@ -186,11 +140,6 @@ class Client:
 def save_scene_png(client, grasps, path):
     """The camera's depth image with the detected TCP positions projected, coloured by
     gravity-rejection score; the executed (top) grasp circled."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from scipy.spatial.transform import Rotation
-
     depth_msg, info, pose = client.depth, client.info, client.camera_pose
     if depth_msg is None or info is None or pose is None:
         return False
@@ -206,7 +155,8 @@ def save_scene_png(client, grasps, path):
     k = info.k
     u = k[0] * p_cam[:, 0] / p_cam[:, 2] + k[2]
     v = k[4] * p_cam[:, 1] / p_cam[:, 2] + k[5]
-    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100)
+    fig = Figure(figsize=(6.4, 4.8), dpi=100)  # no pyplot: no backend, no global figure list
+    ax = fig.subplots()
     ax.imshow(np.where(depth > 0, depth, np.nan), cmap="gray")
     sc = ax.scatter(u, v, c=scores, cmap="viridis", s=18)
     ax.scatter(u[:1], v[:1], s=160, facecolors="none", edgecolors="red", linewidths=2)
@@ -215,7 +165,6 @@ def save_scene_png(client, grasps, path):
     ax.set_title(f"{len(scores)} grasps; executed: {scores[0]:.1f} N" if len(scores) else "no grasps")
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return True
 
 
@@ -236,12 +185,9 @@ def judge(states):
 def save_summary_png(report, path):
     """One page: each attempt's executed score against the object's weight, with every
     detected grasp's score behind it; colour = outcome, label = mode."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     attempts = report["attempts"]
-    fig, ax = plt.subplots(figsize=(8.27, 5.0), dpi=100)
+    fig = Figure(figsize=(8.27, 5.0), dpi=100)
+    ax = fig.subplots()
     for k, a in enumerate(attempts, 1):
         ax.scatter([k] * len(a["all_scores_n"]), a["all_scores_n"], s=12, color="0.75", zorder=1)
         colour = "tab:green" if a["success"] else "tab:red"
@@ -264,7 +210,102 @@ def save_summary_png(report, path):
         fig.text(0.01, 0.01, "ERRORS: " + "; ".join(report["errors"])[:200], color="red", fontsize=7)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
+
+
+class DemoCell:
+    """What `clearing.clear_table` drives, over ROS: the sim bridge's object states, the
+    stack's detections (fresh TSDF -> /grasps) and its /execute_grasp. Judges each
+    attempt by the executor and by the sim's ground truth, prints it, adds it to the
+    report and takes a lifted object out of the scene."""
+
+    def __init__(self, client, args, out, report):
+        self.client, self.args, self.out, self.report = client, args, out, report
+        self.states = client.states  # before the current attempt: the grasped object's name and mass
+        self.n_attempts = 0
+        self.grasps_detected, self.last_refusal = 0, ""
+        self._fallen = set()
+        self._tried = 0  # grasps of the current view sent to the executor
+        self._t0 = time.monotonic()
+
+    def objects_on_table(self) -> list:
+        s = self.client.states
+        return [n for n, gone in zip(s.names, s.out_of_workspace) if not gone]
+
+    def remove_fallen(self) -> list:
+        s = self.client.states
+        fallen = [n for n, gone in zip(s.names, s.out_of_workspace) if gone and n not in self._fallen]
+        self._fallen.update(fallen)
+        return fallen
+
+    def detect(self) -> tuple:
+        """(GraspArray, its grasps best first) detected in a fresh TSDF."""
+        client = self.client
+        self.states = client.states
+        client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=True), 10)
+        grasps = client.fresh_grasps(timeout_s=60)
+        if grasps is None or not grasps.grasps:
+            return grasps, []
+        save_scene_png(client, grasps, self.out / f"attempt_{self.n_attempts + 1:02d}.png")
+        # While the arm moves nobody needs new views: fusing and detecting them would
+        # take CPU from the physics. (Paused only now: the executor wants a TSDF
+        # younger than its max_tsdf_age_s.)
+        client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=False), 10)
+        self._t0, self._tried, self.grasps_detected = time.monotonic(), 0, len(grasps.grasps)
+        client.modes_seen = {}
+        return grasps, list(grasps.grasps)
+
+    def execute(self, top, grasps) -> dict:
+        """One /execute_grasp call. A grasp the executor refuses before moving (hand in
+        collision with the TSDF, unreachable) raises Refused; a fault (it disarms)
+        raises Fault."""
+        client, states = self.client, self.states
+        rank, self._tried = self._tried, self._tried + 1
+        request = ExecuteGrasp.Request(use_index=False, grasp=top)
+        request.header = grasps.header
+        response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
+        if response.result_code in REFUSED_BEFORE_MOTION:
+            self.last_refusal = response.message
+            raise Refused(response.message)
+        result = RESULT_NAMES.get(response.result_code, str(response.result_code))
+        if response.result_code in FAULTS:
+            print(f"executor fault on grasp #{rank + 1}: {result} ({response.message}): round ends", flush=True)
+            raise Fault(f"{result}: {response.message}")
+        after = client.states_after(1.0)
+        truth, lifted, mode = judge(after)
+        pp, qq = top.pose.position, top.pose.orientation
+        # The grasped object: the lifted one, else the one nearest the grasp before it
+        # (a dropped object may have rolled anywhere since).
+        target = lifted[0] if lifted else (states.names[nearest_object(states, (pp.x, pp.y, pp.z))]
+                                           if states.names else "")
+        mass = dict(zip(states.names, states.mass_kg)).get(target, self.args.mass_kg)
+        # The mode the contacts showed while it was in the hand (4 Hz samples during
+        # the execution), also for an object lost later in the lift.
+        mode = mode or client.modes_seen.get(target, "")
+        weight_n = mass * G_MPS2
+        score = float(top.gravity_rejection_score)
+        success = bool(response.success) and truth
+        outcome = "success" if success else "not_lifted" if response.success else result.lower()
+        attempt = {"score_n": score, "validness": float(top.validness),
+                   "all_scores_n": [float(g.gravity_rejection_score) for g in grasps.grasps],
+                   "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
+                   "object": target, "weight_n": round(weight_n, 2), "mode": mode,
+                   "result": result, "message": response.message, "outcome": outcome,
+                   "lifted": lifted, "executor_success": bool(response.success), "ground_truth_lifted": truth,
+                   "wall_s": round(time.monotonic() - self._t0, 1)}
+        self.n_attempts += 1
+        k = self.n_attempts
+        print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
+              f"({score / weight_n:.1f}x), {mode + ' grasp' if mode else 'never in the hand'} -> "
+              f"{'SUCCESS' if success else 'FAIL'} "
+              f"({result}: {response.message})", flush=True)
+        if bool(response.success) != truth:
+            error = (f"attempt {k}: the executor said {result} but the sim's ground truth says "
+                     + (f"{', '.join(lifted)} is lifted" if truth else "nothing is lifted"))
+            self.report["errors"].append(error)
+            print(f"ERROR: {error}", flush=True)
+        for name in lifted:
+            client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
+        return attempt
 
 
 def run(args) -> dict:
@@ -276,6 +317,7 @@ def run(args) -> dict:
     report = {"seed": args.seed, "n_objects": args.objects, "arrangement": args.arrangement,
               "object_mass_kg": args.mass_kg, "safety": args.safety, "min_score_n": min_score_n,
               "model": args.model, "attempts": [], "errors": []}
+    n_objects = None
     t_start = time.monotonic()
     try:
         procs.start("sim", [installed("sim_bridge", "sim"), "--ros-args",
@@ -296,91 +338,29 @@ def run(args) -> dict:
         client.call(SetBool, "execute/arm", SetBool.Request(data=True), 30)
         print(f"{args.objects} objects of {args.mass_kg:g} kg (weight {args.mass_kg * G_MPS2:.1f} N); the detector "
               f"returns grasps scored >= {min_score_n:.1f} N ({args.safety:g} x weight)", flush=True)
-        n_objects = None
-        failures = 0
-        while failures < 2:
-            states = client.states
-            on_table = [] if states is None else [n for n, out_ in zip(states.names, states.out_of_workspace) if not out_]
-            if n_objects is None and states is not None:
-                n_objects = len(states.names)
-                report["objects"] = list(states.names)
-            if states is not None and not on_table:
-                print("table clear", flush=True)
-                report["end"] = "table clear"
-                break
-            client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=True), 10)
-            grasps = client.fresh_grasps(timeout_s=60)
-            if grasps is None or not grasps.grasps:
-                print(f"no grasp scored >= {min_score_n:.1f} N detected: round ends", flush=True)
-                report["end"] = "no grasp detected"
-                break
-            save_scene_png(client, grasps, out / f"attempt_{len(report['attempts']) + 1:02d}.png")
-            # While the arm moves nobody needs new views: fusing and detecting them would
-            # take CPU from the physics. (Paused only now: the executor wants a TSDF
-            # younger than its max_tsdf_age_s.)
-            client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=False), 10)
-            # Best-ranked first; a grasp the executor refuses before moving (hand in
-            # collision with the TSDF, unreachable) is no attempt: try the next one.
-            t0 = time.monotonic()
-            client.modes_seen = {}
-            for rank, top in enumerate(grasps.grasps):
-                request = ExecuteGrasp.Request(use_index=False, grasp=top)
-                request.header = grasps.header
-                response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
-                if response.result_code not in REFUSED_BEFORE_MOTION:
-                    break
-            if response.result_code in REFUSED_BEFORE_MOTION:
-                print(f"none of the {len(grasps.grasps)} grasps passes the executor's checks "
-                      f"(last: {response.message}): round ends", flush=True)
-                report["end"] = "no executable grasp"
-                break
-            result = RESULT_NAMES.get(response.result_code, str(response.result_code))
-            if response.result_code in FAULTS:
-                print(f"executor fault on grasp #{rank + 1}: {result} ({response.message}): round ends", flush=True)
-                report["end"] = f"executor fault: {result}"
-                report["fault"] = response.message
-                break
-            after = client.states_after(1.0)
-            truth, lifted, mode = judge(after)
-            pp, qq = top.pose.position, top.pose.orientation
-            # The grasped object: the lifted one, else the one nearest the grasp before it
-            # (a dropped object may have rolled anywhere since).
-            target = lifted[0] if lifted else (states.names[nearest_object(states, (pp.x, pp.y, pp.z))]
-                                               if states is not None and states.names else "")
-            mass = dict(zip(states.names, states.mass_kg)).get(target, args.mass_kg) if states is not None else args.mass_kg
-            # The mode the contacts showed while it was in the hand (4 Hz samples during
-            # the execution), also for an object lost later in the lift.
-            mode = mode or client.modes_seen.get(target, "")
-            weight_n = mass * G_MPS2
-            score = float(top.gravity_rejection_score)
-            attempt = {"rank": rank, "score_n": score, "validness": float(top.validness),
-                       "all_scores_n": [float(g.gravity_rejection_score) for g in grasps.grasps],
-                       "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
-                       "object": target, "weight_n": round(weight_n, 2), "mode": mode,
-                       "result": result, "message": response.message,
-                       "lifted": lifted, "executor_success": bool(response.success), "ground_truth_lifted": truth,
-                       "success": bool(response.success) and truth, "wall_s": round(time.monotonic() - t0, 1)}
-            report["attempts"].append(attempt)
-            k = len(report["attempts"])
-            print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
-                  f"({score / weight_n:.1f}x), {mode + ' grasp' if mode else 'never in the hand'} -> "
-                  f"{'SUCCESS' if attempt['success'] else 'FAIL'} "
-                  f"({result}: {response.message})", flush=True)
-            if bool(response.success) != truth:
-                error = (f"attempt {k}: the executor said {result} but the sim's ground truth says "
-                         + (f"{', '.join(lifted)} is lifted" if truth else "nothing is lifted"))
-                report["errors"].append(error)
-                print(f"ERROR: {error}", flush=True)
-            for name in lifted:
-                client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
-            failures = 0 if attempt["success"] else failures + 1
+        states = client.states_after(0.0)
+        if states is None:
+            raise SystemExit("demo: the sim publishes no object_states")
+        n_objects = len(states.names)
+        report["objects"] = list(states.names)
+        cell = DemoCell(client, args, out, report)
+        # The benchmark's rules: when a round ends, what counts as an attempt.
+        record = clear_table(cell, n_objects)
+        report.update(record)  # end, attempts, fell_off (+ fault)
+        end_line = {"table_clear": "table clear",
+                    "consecutive_failures": f"{CONSECUTIVE_FAILURES_END} failures in a row: round ends",
+                    "attempt_limit": f"{len(record['attempts'])} attempts: round ends",
+                    "no_grasp_detected": f"no grasp scored >= {min_score_n:.1f} N detected: round ends",
+                    "no_feasible_grasp": f"none of the {cell.grasps_detected} grasps passes the executor's checks "
+                                         f"(last: {cell.last_refusal}): round ends"}.get(record["end"])
+        if end_line:
+            print(end_line, flush=True)
         rclpy.try_shutdown()
     finally:
         procs.stop()
     successes = sum(a["success"] for a in report["attempts"])
-    attempts = max(len(report["attempts"]), 1)
-    report["SR"] = successes / attempts
-    report["CR"] = successes / max(n_objects or args.objects, 1)
+    report["SR"], report["CR"] = success_rates(successes, len(report["attempts"]), n_objects or args.objects,
+                                               empty=0.0)
     report["wall_s"] = round(time.monotonic() - t_start, 1)
     (out / "report.json").write_text(json.dumps(report, indent=1))
     if report["attempts"]:

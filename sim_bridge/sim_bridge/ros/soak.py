@@ -36,6 +36,17 @@ import threading
 import time
 
 import numpy as np
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CameraInfo, Image
+
+from gravgrasp_msgs.msg import GraspArray
+from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
+
+from ..world import SceneConfig, SimWorld, WorldSettings
+from .processes import Processes, installed
 
 RSS_GROWTH_LIMIT = 0.05
 LATENCY_GOAL_P95_MS = 25.0
@@ -72,8 +83,6 @@ def percentile(values, q):
 
 def render_view(seed: int, n_objects: int):
     """(depth float32 [m], CameraIntrinsics, T_task_camera) of the sim camera's view."""
-    from ..world import SceneConfig, SimWorld, WorldSettings
-
     world = SimWorld(SceneConfig(seed=seed, n_objects=n_objects), WorldSettings())
     return world.render_depth()
 
@@ -83,13 +92,6 @@ class Replay:
     /grasps; the rclpy side of the soak."""
 
     def __init__(self, depth, intrinsics, rate_hz):
-        import rclpy
-        from rclpy.executors import MultiThreadedExecutor
-        from rclpy.qos import qos_profile_sensor_data
-        from sensor_msgs.msg import CameraInfo, Image
-
-        from gravgrasp_msgs.msg import GraspArray
-
         self.node = rclpy.create_node("soak")
         self.image_pub = self.node.create_publisher(Image, "depth/image", qos_profile_sensor_data)
         self.info_pub = self.node.create_publisher(CameraInfo, "depth/camera_info", qos_profile_sensor_data)
@@ -153,15 +155,10 @@ def last_count(log_text, pattern):
 
 
 def run(args) -> dict:
-    import rclpy
-
-    from .clutter_demo import Processes, installed
-
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"soak: rendering the seed-{args.seed} view ...", flush=True)
     depth, intrinsics, T = render_view(args.seed, args.objects)
-    from scipy.spatial.transform import Rotation
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     camera_pose = [float(v) for v in (*T[:3, 3], *q)]
     procs = Processes(out)
@@ -204,7 +201,6 @@ def run(args) -> dict:
         print(f"soak: {args.duration_s:.0f} s at {args.rate_hz:g} Hz; RSS after {warmup_s:.0f} s warm-up (kB): "
               + ", ".join(f"{n} {v}" for n, v in rss_start.items()), flush=True)
         next_execute = time.monotonic() + args.execute_every_s
-        from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
         while publisher.is_alive():
             publisher.join(1.0)
             if args.no_execute or time.monotonic() < next_execute or time.monotonic() - t0 > args.duration_s - 30:

@@ -8,7 +8,8 @@ Other sub-packages use the names below, not the modules behind them."""
 from .config import BARE_MESH_DENSITY_KG_M3, R_TOP_DOWN, CameraSettings, SceneConfig, WorldSettings, pose
 from .finger_calibration import STROKE_M
 from .runner import RealTimeRunner, SimFingerPlant
-from .sim_world import ObjectState, SimWorld
+from .contacts import ObjectState
+from .sim_world import SimWorld
 
 __all__ = ["BARE_MESH_DENSITY_KG_M3", "R_TOP_DOWN", "STROKE_M", "CameraSettings", "ObjectState", "RealTimeRunner",
            "SceneConfig", "SimFingerPlant", "SimWorld", "WorldSettings", "pose"]

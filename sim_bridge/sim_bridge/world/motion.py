@@ -1,5 +1,5 @@
 """The arm stand-in's straight-line TCP motion: translation along a line, rotation along
-the geodesic, on a minimum-jerk profile."""
+the geodesic, on a minimum-jerk profile; and its reach (`check_reachable`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .config import pose
+from ..physics.scenes import TABLE_HEIGHT_M
+from .config import WorldSettings, pose
 
 
 def _rotvec(R) -> np.ndarray:
@@ -63,3 +64,23 @@ class Motion:
     def finish(self, success, message):
         self.result = (bool(success), message)
         self.done.set()
+
+
+def check_reachable(X_task_tcp, settings: WorldSettings) -> tuple:
+    """(reachable, message): the stand-in reaches a TCP pose inside its workspace box
+    and not below the table top."""
+    X = np.asarray(X_task_tcp, float)
+    if X.shape != (4, 4) or not np.isfinite(X).all():
+        return False, "target pose is not a finite 4x4 transform"
+    R = X[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        return False, "target rotation is not a proper rotation (normalise the quaternion)"
+    p = X[:3, 3]
+    if p[2] < TABLE_HEIGHT_M:
+        return False, f"target TCP z = {p[2]:.3f} m is below the table top ({TABLE_HEIGHT_M} m)"
+    lo, hi = np.asarray(settings.workspace_min_m), np.asarray(settings.workspace_max_m)
+    if np.any(p < lo) or np.any(p > hi):
+        box = "..".join("(" + ", ".join(f"{v:.2f}" for v in b) + ")" for b in (lo, hi))
+        return False, (f"target TCP ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m is outside the arm "
+                       f"stand-in's workspace {box} m")
+    return True, "reachable"

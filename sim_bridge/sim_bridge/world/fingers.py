@@ -1,0 +1,157 @@
+"""The 2F-85's fingers in a SimWorld: commands to its motor and what the gripper reports.
+
+The motor is `physics.actuators.FingerServoSystem` (a LeafSystem): a position servo on
+the driver joint whose reference moves at the commanded speed and whose torque is
+clipped at the value that squeezes the commanded force (grasp_simulation's
+calibration). Blocked by an object, the reference runs on to the target and the torque
+saturates: a force-limited grip, as the real gripper does. Width is reported from the
+driver angle through the free-closing calibration (`DRIVER_ANGLE_RAD` -> `PAD_GAP_M`),
+as the real gripper reports its motor position, not the pad gap. Whether the fingers
+move, reached the target or stopped on something comes from a stall detection.
+
+No locking here: SimWorld calls it under its lock."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..physics.actuators import FingerServoSystem, driver_torque_nm
+from .finger_calibration import GAP_PER_DRIVER_RAD_M, driver_angle_for_width, width_from_driver_angle
+
+
+@dataclass
+class FingerCommand:
+    target_width_m: float
+    speed_mps: float
+    force_n: float
+    t_start_s: float  # sim time the command arrived
+    held: bool = False  # stopped where the fingers were (hold_fingers)
+
+
+class Fingers:
+    """The finger servo of one world diagram (`diagram.WorldDiagram`) run by `simulator`;
+    a new world gets new Fingers. Until the first command the servo holds them open at
+    `grip_force_n`'s torque."""
+
+    STALL_RATE_RAD_S = 0.05
+    STALL_HOLD_S = 0.04  # stalled this long = stopped
+    START_GRACE_S = 0.06  # after a new command, before a stop can be declared
+    BLOCK_RELEASE_RAD = 0.02  # ~2 mm of opening: fingers moving on from an object
+
+    def __init__(self, model, simulator, grip_force_n: float):
+        self._model, self._simulator = model, simulator
+        self._command = None
+        self._stall_since_s = self._blocked_angle = None
+        model.finger_servo.set_command(self._servo_context(), 0.0, 1.0, driver_torque_nm(grip_force_n))
+
+    def _time_s(self) -> float:
+        return self._simulator.get_context().get_time()
+
+    def _plant_context(self):
+        return self._model.plant.GetMyMutableContextFromRoot(self._simulator.get_mutable_context())
+
+    def _servo_context(self):
+        return self._model.finger_servo.GetMyMutableContextFromRoot(self._simulator.get_mutable_context())
+
+    def command(self, target_width_m: float, speed_mps: float, force_n: float) -> None:
+        """Move towards an opening [m] at a speed [m/s of opening], squeezing at most
+        `force_n` [N] (a new target restarts the stall detection)."""
+        cmd = self._command
+        if cmd is None or (cmd.target_width_m, cmd.speed_mps, cmd.force_n) != (target_width_m, speed_mps, force_n):
+            self._command = FingerCommand(target_width_m, speed_mps, force_n, self._time_s())
+            self._stall_since_s = self._blocked_angle = None
+            ctx = self._servo_context()
+            if cmd is None:  # first command: start the reference where the fingers are
+                self._model.finger_servo.set_reference(ctx, self.driver_angle_rad())
+            self._model.finger_servo.set_command(
+                ctx, driver_angle_for_width(target_width_m),
+                max(speed_mps, 1e-3) / GAP_PER_DRIVER_RAD_M, driver_torque_nm(force_n))
+
+    def commanded(self) -> bool:
+        """True while a command runs (not stopped by `hold`)."""
+        return self._command is not None and not self._command.held
+
+    def hold(self) -> None:
+        """Stop where they are (the 2F-85's rGTO = 0; its drive self-locks)."""
+        if self._command is None:
+            return
+        angle = self.driver_angle_rad()
+        ctx = self._servo_context()
+        _, rate, torque = self._model.finger_servo.command(ctx)
+        self._model.finger_servo.set_reference(ctx, angle)
+        self._model.finger_servo.set_command(ctx, angle, rate, torque)
+        self._command = FingerCommand(width_from_driver_angle(angle), self._command.speed_mps,
+                                      self._command.force_n, self._time_s(), held=True)
+
+    def driver_angle_rad(self) -> float:
+        return self._model.hand.driver_angle_rad(self._model.plant, self._plant_context())
+
+    def width_m(self) -> float:
+        return width_from_driver_angle(self.driver_angle_rad())
+
+    def _driver_rate(self):
+        iv = self._model.hand.driver_joints[0].velocity_start()
+        return float(self._model.plant.GetVelocities(self._plant_context())[iv])
+
+    def update_stall(self) -> None:
+        """After every time step: when the driver stalled."""
+        if self._command is None:
+            return
+        if abs(self._driver_rate()) < self.STALL_RATE_RAD_S:
+            if self._stall_since_s is None:
+                self._stall_since_s = self._time_s()
+        else:
+            self._stall_since_s = None
+
+    def status(self) -> tuple:
+        """(width_m, state) with state 'moving', 'at_target' or 'blocked' (stopped short
+        of the target: on an object, or with the fingers touching each other)."""
+        cmd = self._command
+        width = self.width_m()
+        if cmd is None:
+            return width, "at_target"
+        target_angle = driver_angle_for_width(cmd.target_width_m)
+        if self._blocked_angle is not None:
+            # Once stopped on an object, stay so while the fingers keep still: a lift
+            # that flexes the fingers for a moment is no dropped object. Only moving
+            # on towards the target (the object slipped out) ends it, as on the 2F-85.
+            if abs(self.driver_angle_rad() - self._blocked_angle) < self.BLOCK_RELEASE_RAD:
+                return width, "blocked"
+            self._blocked_angle = None
+            self._stall_since_s = None
+        t = self._time_s()
+        # Stopped = stalled while the motor pushes with its full torque towards the
+        # target. Right after a reversal (open after a squeeze) the fingers stall too,
+        # until the servo reference has come back past them: that is no stop.
+        stopped = (self._stall_since_s is not None and t - self._stall_since_s >= self.STALL_HOLD_S
+                   and t - cmd.t_start_s >= self.START_GRACE_S and self._pushing(target_angle))
+        close_enough = abs(self.driver_angle_rad() - target_angle) < 0.01
+        if close_enough and (stopped or t - cmd.t_start_s >= self.START_GRACE_S):
+            return cmd.target_width_m, "at_target"
+        if stopped:
+            # Stopped short of the target: on an object, or on the other finger (the
+            # pads or fingertips meet when closing on nothing; where depends on how
+            # the underactuated fingers folded: 1.1 mm from open, 3.7 mm after a
+            # fingertip pinch lost its object). Either way the 2F-85 reports an
+            # object (gOBJ 2) at its motor position; telling them apart is the
+            # executor's job (robotiq_driver.grip_calibration).
+            self._blocked_angle = self.driver_angle_rad()
+            return width, "blocked"
+        return width, "moving"
+
+    def _pushing(self, target_angle) -> bool:
+        """The finger servo's torque is (nearly) at its limit, towards the target."""
+        ctx = self._servo_context()
+        _, _, limit = self._model.finger_servo.command(ctx)
+        q = self.driver_angle_rad()
+        tau = FingerServoSystem.KP_NM_PER_RAD * (self._model.finger_servo.reference(ctx) - q)
+        return tau * (target_angle - q) > 0 and abs(tau) >= 0.9 * limit
+
+    def busy(self) -> bool:
+        """True while the fingers move or the servo is still building up its grip."""
+        if self._command is None:
+            return False
+        ctx = self._servo_context()
+        target, _, _ = self._model.finger_servo.command(ctx)
+        ref = self._model.finger_servo.reference(ctx)
+        return abs(ref - target) > 1e-9 or self.status()[1] == "moving"
