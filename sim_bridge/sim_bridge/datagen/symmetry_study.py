@@ -25,9 +25,11 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
+from gravgrasp_detector import atomic_files
+from scipy.stats import spearmanr
 
 from ..parallel import make_executor, run_tasks, task_seed
-from .label_settings_study import compare, gravity_directions_tcp
+from .label_settings_study import compare, f_g_matrix, gravity_directions_tcp
 from .object_grasps import load_table, object_from_table
 
 CONTROL_SHIFT_M = 0.001
@@ -101,6 +103,62 @@ def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed):
     return chosen
 
 
+def summarize(grasps, kinds, held, scores, cap, seed):
+    """The study's report from its raw results, printing it as it goes.
+
+    grasps: [(object name, table row)]; kinds: "procedural" | "mesh" per grasp;
+    held: (n, 3) bool, scores: 3 arrays (n, 6) [N], for original, copy, 1 mm control.
+    """
+    held = np.asarray(held, bool)
+    gravity = gravity_directions_tcp(len(grasps), np.random.default_rng(seed))
+    both = held[:, 0]  # compare scores where the original holds (all of them unless the code changed)
+    objects = list(dict.fromkeys(name for name, _ in grasps))
+    report = dict(n_grasps=len(grasps), objects=objects, cap_n=cap,
+                  original_held=float(held[:, 0].mean()),
+                  raw=dict(grasps=[[name, int(r)] for name, r in grasps], kinds=list(kinds), held=held.tolist(),
+                           scores_original=scores[0].tolist(), scores_symmetric_copy=scores[1].tolist(),
+                           scores_control_1mm=scores[2].tolist()))
+    for i, name in ((1, "symmetric_copy"), (2, "control_1mm")):
+        c = compare(scores[0][both], scores[i][both], cap, gravity[both])
+        c["held_when_original_held"] = float(held[both, i].mean())
+        report[name] = c
+        print(f"{name}: held {100 * c['held_when_original_held']:.0f} % where the original held; "
+              f"Spearman f_g {c['spearman_f_g']:.3f}, weakest {c['spearman_weakest']:.3f}; "
+              f"MAE per direction {c['mae_per_direction_n']} N, f_g MAE {c['mae_f_g_n']:.2f} N")
+    kind = np.asarray(kinds)
+    for k in ("procedural", "mesh"):  # exact primitives in Drake vs tessellated, near-symmetric meshes
+        sel = both & (kind == k)
+        if sel.sum() >= 3:
+            line = []
+            for i, name, label in ((1, "symmetric_copy", "copy"), (2, "control_1mm", "1 mm control")):
+                c = compare(scores[0][sel], scores[i][sel], cap, gravity[sel])
+                c["held_when_original_held"] = float(held[sel, i].mean())
+                report[f"{name}_{k}"] = c
+                line.append(f"{label} held {100 * c['held_when_original_held']:.0f} %, "
+                            f"Spearman f_g {c['spearman_f_g']:.3f}, f_g MAE {c['mae_f_g_n']:.2f} N")
+            print(f"  {k} objects ({sel.sum()} grasps): " + "; ".join(line))
+    # how sure: Spearman f_g of copy minus control, grasps resampled (bootstrap, 90 % interval);
+    # f_g per grasp is computed once, as compare() does (scores and f_g capped)
+    f_g = [np.minimum(f_g_matrix(np.minimum(sc, cap), gravity), cap) for sc in scores]
+    rng = np.random.default_rng(seed)
+    idx = np.flatnonzero(both)
+    diff = []
+    for _ in range(300):
+        b = rng.choice(idx, size=len(idx))
+        diff.append(spearmanr(f_g[0][b].ravel(), f_g[1][b].ravel())[0]
+                    - spearmanr(f_g[0][b].ravel(), f_g[2][b].ravel())[0])
+    report["spearman_f_g_copy_minus_control_90ci"] = [float(np.quantile(diff, 0.05)), float(np.quantile(diff, 0.95))]
+    print(f"Spearman f_g, copy minus control: 90 % bootstrap interval "
+          f"[{report['spearman_f_g_copy_minus_control_90ci'][0]:+.3f}, {report['spearman_f_g_copy_minus_control_90ci'][1]:+.3f}]")
+    report["kept"] = bool(report["symmetric_copy"]["spearman_f_g"] >= report["control_1mm"]["spearman_f_g"] - 0.02
+                          and report["symmetric_copy"]["held_when_original_held"]
+                          >= report["control_1mm"]["held_when_original_held"] - 0.05)
+    print(f"{len(grasps)} held grasps of {len(objects)} symmetric objects ({', '.join(objects)}); "
+          f"original still held {100 * report['original_held']:.0f} %; copies "
+          f"{'agree as well as the 1 mm control: kept' if report['kept'] else 'agree worse than the 1 mm control'}")
+    return report
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="symmetry_study", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -111,7 +169,15 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--out", default="out/symmetry_study.json")
+    p.add_argument("--summarize", metavar="JSON", help="no simulation: report again from a study's raw results")
     args = p.parse_args(argv)
+    if args.summarize:
+        raw = json.loads(pathlib.Path(args.summarize).read_text())
+        r = raw["raw"]
+        report = summarize([tuple(g) for g in r["grasps"]], r["kinds"], r["held"],
+                           [np.asarray(r[k], float) for k in ("scores_original", "scores_symmetric_copy",
+                                                              "scores_control_1mm")], raw["cap_n"], args.seed)
+        return finish(report, args.out)
 
     chosen = pick_grasps(args.tables, tuple(args.meshes), args.objects, args.per_object, args.seed)
     if not chosen:
@@ -131,50 +197,14 @@ def main(argv=None):
     cap = min(float(json.loads(str(t["sim_settings"]))["max_force_n"]) for t in tables.values())
     held = np.array([[res[i][0] for i in range(3)] for res in (results[k] for k in keys)])
     scores = [np.array([results[k][i][1] for k in keys]) for i in range(3)]
-    gravity = gravity_directions_tcp(len(keys), np.random.default_rng(args.seed))
-    both = held[:, 0]  # compare scores where the original holds (all of them unless the code changed)
-    report = dict(n_grasps=len(keys), objects=[pathlib.Path(pth).stem for pth, _, _ in chosen], cap_n=cap,
-                  original_held=float(held[:, 0].mean()),
-                  raw=dict(grasps=[[pathlib.Path(pth).stem, int(r)] for pth, r in keys], held=held.tolist(),
-                           scores_original=scores[0].tolist(), scores_symmetric_copy=scores[1].tolist(),
-                           scores_control_1mm=scores[2].tolist()))
-    for i, name in ((1, "symmetric_copy"), (2, "control_1mm")):
-        c = compare(scores[0][both], scores[i][both], cap, gravity[both])
-        c["held_when_original_held"] = float(held[both, i].mean())
-        report[name] = c
-        print(f"{name}: held {100 * c['held_when_original_held']:.0f} % where the original held; "
-              f"Spearman f_g {c['spearman_f_g']:.3f}, weakest {c['spearman_weakest']:.3f}; "
-              f"MAE per direction {c['mae_per_direction_n']} N, f_g MAE {c['mae_f_g_n']:.2f} N")
-    kind = np.array([str(tables[pth]["source_kind"]) for pth, _ in keys])
-    for k in ("procedural", "mesh"):  # exact primitives in Drake vs tessellated, near-symmetric meshes
-        sel = both & (kind == k)
-        if sel.sum() >= 3:
-            c = compare(scores[0][sel], scores[1][sel], cap, gravity[sel])
-            c["held_when_original_held"] = float(held[sel, 1].mean())
-            report[f"symmetric_copy_{k}"] = c
-            print(f"  {k} objects ({sel.sum()} grasps): copy held {100 * c['held_when_original_held']:.0f} %, "
-                  f"Spearman f_g {c['spearman_f_g']:.3f}, f_g MAE {c['mae_f_g_n']:.2f} N")
-    # how sure: Spearman f_g of copy minus control, grasps resampled (bootstrap, 90 % interval)
-    rng = np.random.default_rng(args.seed)
-    idx = np.flatnonzero(both)
-    diff = []
-    for _ in range(300):
-        b = rng.choice(idx, size=len(idx))
-        diff.append(compare(scores[0][b], scores[1][b], cap, gravity[b])["spearman_f_g"]
-                    - compare(scores[0][b], scores[2][b], cap, gravity[b])["spearman_f_g"])
-    report["spearman_f_g_copy_minus_control_90ci"] = [float(np.quantile(diff, 0.05)), float(np.quantile(diff, 0.95))]
-    print(f"Spearman f_g, copy minus control: 90 % bootstrap interval "
-          f"[{report['spearman_f_g_copy_minus_control_90ci'][0]:+.3f}, {report['spearman_f_g_copy_minus_control_90ci'][1]:+.3f}]")
-    report["kept"] = bool(report["symmetric_copy"]["spearman_f_g"] >= report["control_1mm"]["spearman_f_g"] - 0.02
-                          and report["symmetric_copy"]["held_when_original_held"]
-                          >= report["control_1mm"]["held_when_original_held"] - 0.05)
-    print(f"{len(keys)} held grasps of {len(chosen)} symmetric objects ({', '.join(report['objects'])}); "
-          f"original still held {100 * report['original_held']:.0f} %; copies "
-          f"{'agree as well as the 1 mm control: kept' if report['kept'] else 'agree worse than the 1 mm control'}")
-    from gravgrasp_detector import atomic_files
+    report = summarize([(pathlib.Path(pth).stem, int(r)) for pth, r in keys],
+                       [str(tables[pth]["source_kind"]) for pth, _ in keys], held, scores, cap, args.seed)
+    return finish(report, args.out)
 
-    pathlib.Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    atomic_files.save_json(args.out, report)
+
+def finish(report, out):
+    pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
+    atomic_files.save_json(out, report)
     print(f"symmetry_spearman_f_g={report['symmetric_copy']['spearman_f_g']:.3f}")
     return 0
 
