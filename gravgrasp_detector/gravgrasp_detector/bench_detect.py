@@ -21,20 +21,18 @@ import time
 import numpy as np
 import open3d
 import torch
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
 
 from . import detection, model_file, networks
 from .tsdf import CameraIntrinsics, TSDFVolume, depth_from_millimetres
+from .tsdf_node import camera_pose_from_msg, depth_from_image_msg
 
 ROOT = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", os.getcwd()))
 
 
 def read_frames(bag):
     """[(depth float32 m, CameraIntrinsics, T_task_camera)] from a bag with depth, info, pose."""
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import Stores, get_typestore
-
-    from .tsdf_node import camera_pose_from_msg, depth_from_image_msg
-
     store = get_typestore(Stores.ROS2_JAZZY)
     frames, info, pose = [], None, None
     with Reader(bag) as reader:

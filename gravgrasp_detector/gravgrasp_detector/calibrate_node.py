@@ -33,10 +33,12 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
 from . import cell_file
+from .bag_replay import read_bag
 from .calibration_capture import CaptureSettings, StillPoseCapture
 from .camera_calibration import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
 from .poses import PoseError
@@ -176,13 +178,11 @@ class CalibrateNode(Node):
 
 
 def run_bag(node: CalibrateNode) -> int:
-    from .bag_replay import read_bag
     topics = {name: "/" + topic.lstrip("/") for name, topic in node.topics.items()}
     path = pathlib.Path(node.bag)
     if not path.exists():
         raise CalibrationError(f"bag {path} does not exist: give the rosbag2 directory")
     try:
-        from rosbags.rosbag2 import Reader
         with Reader(path) as reader:
             found = {c.topic for c in reader.connections if c.msgcount > 0}
         missing = [t for t in topics.values() if t not in found]

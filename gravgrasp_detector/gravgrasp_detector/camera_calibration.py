@@ -37,6 +37,7 @@ import math
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 MODES = ("eye_to_hand", "eye_in_hand")
@@ -252,8 +253,6 @@ def _from_params(v):
 
 
 def _refine(mode, X, Y, robot, observations, K, dist):
-    from scipy.optimize import least_squares
-
     K, dist = np.asarray(K, float).reshape(3, 3), np.asarray(dist, float).ravel()
 
     def residuals(v, per_view=False):

@@ -26,6 +26,7 @@ import math
 import pathlib
 
 import numpy as np
+import yaml
 
 G_MPS2 = 9.81
 ARM_ADAPTERS = ("service", "ur")
@@ -62,8 +63,6 @@ def _flatten(values: dict, prefix: str = "") -> dict:
 def load_sections(paths) -> dict:
     """{node name: {parameter: value}} over all files (later files win), node names
     without a leading '/'; wildcard sections ('/**') are kept under '**'."""
-    import yaml
-
     sections: dict = {}
     for path in paths:
         try:

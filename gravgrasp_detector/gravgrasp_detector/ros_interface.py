@@ -71,7 +71,7 @@ def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | No
     end the process with one line and code 2 (anything else is a bug: traceback).
     `threads`: None spins a single-threaded executor, else a MultiThreadedExecutor.
     """
-    import rclpy  # here, not at the top: see spin
+    import rclpy  # lazy: see spin
 
     rclpy.init(args=args)
     try:
@@ -86,7 +86,7 @@ def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | No
 def spin(nodes, threads: int | None = None) -> int:
     """Spin `nodes` (rclpy already initialised) until Ctrl-C or shutdown; then
     `close()` each node that has one, destroy them and shut rclpy down; -> 0."""
-    # rclpy here, not at the top: the message conversions above also serve modules that
+    # lazy: rclpy; the message conversions above also serve modules that
     # stay rclpy-free (markers).
     import rclpy
     from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor

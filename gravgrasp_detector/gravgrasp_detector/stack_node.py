@@ -32,6 +32,7 @@ from .model_file import ModelFileError
 from .ros_interface import described, spin
 from .tsdf import InputError
 from .tsdf_node import TSDFNode
+from .ur_arm_node import URArmNode
 
 STACK_PARAMETERS = {
     "arm_adapter": ("service", "'service': move_to_pose is served by another process (sim bridge, your adapter); "
@@ -69,7 +70,6 @@ def main(args=None):
         rclpy.init(args=args + (["--ros-args"] + cell.overrides if cell.overrides else []))
         makers = [TSDFNode, DetectNode, ExecuteNode]
         if cell.arm_adapter == "ur":
-            from .ur_arm_node import URArmNode
             makers.append(URArmNode)
         for make in makers:
             nodes.append(make())

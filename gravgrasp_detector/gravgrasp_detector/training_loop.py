@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from . import atomic_files, model_file, networks, rotation, tsdf
 from .training_config import TrainConfig
@@ -61,8 +62,6 @@ def evaluate(model, scenes, config, device):
 def train(config: TrainConfig, progress=True, argv=None):
     """Train (or resume) and write model.pt, checkpoint.pt, history.json and
     training_curve.png into config.out. Returns the final validation metrics."""
-    from tqdm import tqdm
-
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     torch.use_deterministic_algorithms(True, warn_only=True)
@@ -166,6 +165,7 @@ def _cpu_model() -> str:
 
 
 def plot_history(history, path):
+    # lazy: matplotlib (seconds), with the Agg backend chosen before pyplot loads
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

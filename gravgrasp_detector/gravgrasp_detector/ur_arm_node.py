@@ -40,9 +40,9 @@ UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > 
 
 
 def rtde_connect(robot_ip: str, frequency_hz: float):
-    """connect() for URArm over the real ur_rtde (imported here: the core needs no ur_rtde)."""
+    """connect() for URArm over the real ur_rtde."""
     def connect():
-        try:
+        try:  # lazy: ur_rtde is optional (only a real arm needs it; the core and tests never do)
             import rtde_control
             import rtde_receive
         except ImportError as e:

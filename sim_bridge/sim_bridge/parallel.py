@@ -11,9 +11,11 @@ Results come back to this process, which alone writes the outputs.
 
 import concurrent.futures as cf
 import contextlib
+import ctypes
 import hashlib
 import multiprocessing
 import os
+import signal
 import sys
 
 from tqdm import tqdm
@@ -39,9 +41,6 @@ def _die_with_parent():
     simulating for nobody, holding the cores, for hours."""
     if not sys.platform.startswith("linux"):
         return
-    import ctypes
-    import signal
-
     PR_SET_PDEATHSIG = 1
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
@@ -54,7 +53,7 @@ def make_executor(workers=None, scheduler=None):
     """Executor for `workers` local processes, or a Dask cluster at `scheduler`
     (e.g. "tcp://10.0.0.1:8786"; the workers need this package and the data paths)."""
     if scheduler:
-        import distributed
+        import distributed  # lazy: Dask (a second to import) only for a cluster run
 
         with distributed.Client(scheduler) as client:
             with client.get_executor() as executor:

@@ -130,7 +130,7 @@ def _ci(ci):
 
 
 def plot(rows, methods, path):
-    # matplotlib here, not at the top: every round's worker process imports this module
+    # lazy: matplotlib; every round's worker process imports this module
     # (through rounds) and never plots; only the parent draws this one figure.
     import matplotlib
     matplotlib.use("Agg")

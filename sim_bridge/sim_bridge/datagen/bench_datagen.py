@@ -27,12 +27,16 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from gravgrasp_detector import atomic_files
 
 from ..parallel import make_executor, run_tasks, task_seed
 from ..physics import hand_collision
+from ..physics.grasp_simulation import GraspSimulator
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
+from .cli import sim_settings
 from .object_grasps import mesh_sources, procedural_sources, read_name_list
+from .resting_poses import find_resting_poses
 from .voxel_labels import RESOLUTION
 
 VOXEL_M = VOLUME_SIZE_M / RESOLUTION
@@ -51,10 +55,6 @@ class YieldTask:
 
 def run_yield_task(task: YieldTask):
     """Worker: resting poses, candidates, their simulation; CPU seconds of each part."""
-    from .cli import sim_settings
-    from ..physics.grasp_simulation import GraspSimulator
-    from .resting_poses import find_resting_poses
-
     obj = task.source.load()
     mesh = obj.collision_mesh()
     c0 = time.process_time()
@@ -173,7 +173,6 @@ def main(argv=None):
         print(f"{label:34s} {fmt.format(figures['free'][key]):>14s} {fmt.format(figures['resting'][key]):>14s}")
     gain = figures["resting"]["labels_per_scene_per_cpu_hour"] / max(figures["free"]["labels_per_scene_per_cpu_hour"], 1e-9)
     if args.json:
-        from gravgrasp_detector import atomic_files
         atomic_files.save_json(args.json, dict(figures=figures, gain=gain, objects=[s.name for s in sources],
                                                grasps=args.grasps, seed=args.seed))
     print(f"labels_per_scene_per_cpu_hour_free={figures['free']['labels_per_scene_per_cpu_hour']:.0f}")

@@ -15,6 +15,7 @@ shared path).
 """
 
 import argparse
+import dataclasses
 import itertools
 import json
 import os
@@ -25,8 +26,12 @@ import numpy as np
 
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks
+from ..physics.contact import SimSettings
 from ..physics.objects import ObjectError
-from .object_grasps import ObjectChunk, ObjectStageStore, mesh_sources, procedural_sources, read_name_list, run_chunk
+from .antipodal_sampling import SamplingSettings
+from .object_grasps import (ObjectChunk, ObjectStageStore, RestTask, mesh_sources, procedural_sources, read_name_list,
+                            run_chunk, run_rest_task)
+from .scene_dataset import run_scene_stage
 
 
 def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, scheduler=None,
@@ -37,8 +42,6 @@ def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, sc
     calling again resumes, and a larger `grasps_per_object` grows the tables.
     With sampling.sampler == "resting" each object's resting poses are found first
     (one task per object) and its candidates are drawn per resting pose."""
-    from .object_grasps import RestTask, SamplingSettings, run_rest_task
-
     sampling = sampling or SamplingSettings()
     store = ObjectStageStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
@@ -128,10 +131,6 @@ def write_object_report(store, sources, errors=None):
 
 def sim_settings(overrides=()):
     """SimSettings with "key=value" overrides (types from the field defaults)."""
-    import dataclasses
-
-    from ..physics.contact import SimSettings
-
     fields = {f.name: f for f in dataclasses.fields(SimSettings)}
     values = {}
     for item in overrides:
@@ -234,16 +233,12 @@ def _run(p, args):
             settings = sim_settings(args.sim_setting)
         except ValueError as e:
             p.error(str(e))
-        from .antipodal_sampling import SamplingSettings
-
         s = run_object_stage(args.out, sources, args.grasps_per_object, args.seed, args.workers, args.scheduler,
                              block_size=args.block_size, sim_settings=settings, progress=not args.no_progress,
                              sampling=SamplingSettings(sampler=args.sampler))
         print(f"objects: ok={s['ok']} skipped={s['skipped']} error={s['error']} pending={s['pending']} "
               f"(report: {ObjectStageStore(args.out).dir / 'report.json'})")
         return 1 if s["error"] else 0
-    from .scene_dataset import run_scene_stage
-
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
                         max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
                         label_pose=args.label_pose, symmetry=not args.no_symmetry)

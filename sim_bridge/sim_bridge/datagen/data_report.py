@@ -117,6 +117,7 @@ def report_text(s):
 
 
 def report_png(s):
+    # lazy: matplotlib (seconds), with the Agg backend chosen before pyplot loads
     import matplotlib
 
     matplotlib.use("Agg")

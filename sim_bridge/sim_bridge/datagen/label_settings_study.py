@@ -24,10 +24,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from gravgrasp_detector import atomic_files
 from scipy.stats import spearmanr
 
 from ..parallel import make_executor, run_tasks
+from ..physics.grasp_simulation import GraspSimulator
 from ..physics.gravity_projection import gravity_rejection_score
+from .cli import sim_settings
 from .object_grasps import load_table, object_from_table
 
 DEFAULT_SETTINGS = ("cap100_rate800=max_force_n=100,force_ramp_rate_n_s=800",
@@ -45,9 +48,6 @@ class StudyTask:
 
 
 def run_study_task(task: StudyTask):
-    from .cli import sim_settings
-    from ..physics.grasp_simulation import GraspSimulator
-
     t = load_table(task.table_path)
     base = json.loads(str(t["sim_settings"]))
     settings = sim_settings([f"{k}={v}" for k, v in base.items() if v is not None] + list(task.overrides))
@@ -181,7 +181,6 @@ def main(argv=None):
         if c["kept"] and (best is None or c["cpu_s_per_held_grasp"] < report["settings"][best]["cpu_s_per_held_grasp"]):
             best = name
     pathlib.Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    from gravgrasp_detector import atomic_files
     atomic_files.save_json(args.out, report)
     name = best or "reference"
     value = report["settings"][best]["cpu_s_per_held_grasp"] if best else report["reference"]["cpu_s_per_held_grasp"]

@@ -43,7 +43,8 @@ import trimesh
 
 from gravgrasp_detector import atomic_files
 from ..parallel import task_seed
-from ..physics.grasp_simulation import MODES
+from ..physics.contact import SimSettings
+from ..physics.grasp_simulation import MODES, GraspSimulator
 from ..physics.hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
 from ..physics.objects import ObjectError, load_mesh_object, random_procedural_objects
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
@@ -219,9 +220,6 @@ def run_chunk(task: ObjectChunk):
 
 
 def _run_chunk(task, obj):
-    from ..physics.grasp_simulation import GraspSimulator
-    from ..physics.contact import SimSettings
-
     settings = task.sim_settings or SimSettings()
     seed = block_seed(task.master_seed, task.source.name, task.chunk)
     if task.sampling.sampler == "resting":

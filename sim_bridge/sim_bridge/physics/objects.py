@@ -54,7 +54,7 @@ class Part:
         return m
 
     def drake_shape(self):
-        from pydrake.geometry import Box, Capsule, Convex, Cylinder, Sphere  # lazy: see the module doc
+        from pydrake.geometry import Box, Capsule, Convex, Cylinder, Sphere  # lazy: pydrake (see the module doc)
 
         if self.kind == "box":
             return Box(*self.size)
@@ -104,7 +104,7 @@ class ObjectSpec:
         `grasp_simulation.proximity_properties(SimSettings())`) with a per-part
         hydroelastic resolution hint.
         """
-        # lazy: see the module doc
+        # lazy: pydrake (see the module doc)
         from pydrake.geometry import Mesh, ProximityProperties
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import RotationalInertia, SpatialInertia

@@ -56,7 +56,7 @@ def build_scene_diagram(objects, settings=SceneSettings(), pile_box_m=None):
     as free bodies under gravity.  pile_box_m: inner width of a temporary square box
     around the table centre that keeps a pile together while it falls (VGN does the
     same), or None."""
-    # pydrake here, not at the top: see the module doc
+    # lazy: pydrake (see the module doc)
     from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
                                   AddRigidHydroelasticProperties, Box, ProximityProperties)
     from pydrake.math import RigidTransform
@@ -95,7 +95,7 @@ def build_scene_diagram(objects, settings=SceneSettings(), pile_box_m=None):
 def settle(scene: SceneDiagram, X_task_objects, settings=SceneSettings()):
     """Simulate from the given object poses until at rest; returns the poses (list of 4x4)
     and whether it settled within max_settle_time_s."""
-    # pydrake here, not at the top: see the module doc
+    # lazy: pydrake (see the module doc)
     from pydrake.math import RigidTransform
     from pydrake.systems.analysis import Simulator
 

@@ -11,15 +11,13 @@ from pydrake.geometry import Box, Capsule, Convex, Cylinder, Mesh, Sphere
 
 from gravgrasp_detector.tsdf import CameraIntrinsics
 
+from ..physics.depth_rendering import DepthRenderer, look_at
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 from .config import CameraSettings
 
 
 def camera_pose(camera: CameraSettings) -> np.ndarray:
     """T_task_camera (4x4, optical frame)."""
-    # depth_rendering loads open3d (ray casting, seconds): only when the camera is used.
-    from ..physics.depth_rendering import look_at
-
     return look_at(camera.position_m, camera.target_m)
 
 
@@ -32,9 +30,6 @@ def camera_intrinsics(camera: CameraSettings) -> CameraIntrinsics:
 def render_depth(camera: CameraSettings, posed_meshes) -> tuple:
     """(depth float32 HxW [m], 0 = no return; CameraIntrinsics; T_task_camera 4x4) of
     `posed_meshes` ((trimesh, X_task_mesh) pairs)."""
-    # open3d (ray casting) is loaded at the first frame only: most worlds never render.
-    from ..physics.depth_rendering import DepthRenderer
-
     T = camera_pose(camera)
     k = camera_intrinsics(camera)
     return DepthRenderer(posed_meshes).render(k, T, camera.max_depth_m), k, T
