@@ -4,7 +4,8 @@ The logic behind `ros2 run gravgrasp_detector ur_arm` (ur_arm_node.py), with no 
 and no ur_rtde import: `URArm` takes a `connect()` callable that returns a pair
 (control, receive) with the methods of ur_rtde's `RTDEControlInterface` and
 `RTDEReceiveInterface` (ur-rtde 1.6.5). The node passes the real ones; the tests pass
-an object that records every call.
+an object that records every call. Its settings are `ur_arm_settings.URArmSettings`;
+the controller's mode codes, pose format and call thread are in `ur_controller`.
 
 Frames (all 4x4 homogeneous transforms; UR poses are [x, y, z, rx, ry, rz], metres
 and a rotation vector in radians, in the robot's base frame):
@@ -43,25 +44,15 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
-import queue
 import threading
 import time
 from typing import Callable
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-# ur_rtde's RTDEReceiveInterface.getRobotMode() and getSafetyMode() values (UR manual).
-ROBOT_MODES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
-               4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
-ROBOT_MODE_RUNNING = 7
-SAFETY_MODES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
-                6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
-                10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
-                13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
-SAFETY_MODES_THAT_MOVE = (1, 2)  # NORMAL, REDUCED (reduced limits still allow motion)
-
-FLANGE_TO_TCP_2F85_M = 0.1558  # robotiq_driver.hand_geometry.FLANGE_TO_TCP_M (kept in sync by a test)
+from .ur_arm_settings import URArmSettings
+from .ur_controller import (ROBOT_MODE_RUNNING, ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread,
+                            matrix_to_ur_pose, pose_error, ur_pose_to_matrix)
 
 
 class URArmError(Exception):
@@ -75,107 +66,12 @@ class ConnectionLost(URArmError):
 
 
 @dataclasses.dataclass
-class URArmSettings:
-    X_task_base: np.ndarray = dataclasses.field(default_factory=lambda: np.eye(4))
-    tcp_in_flange: tuple = (0.0, 0.0, FLANGE_TO_TCP_2F85_M, 0.0, 0.0, 0.0)  # UR pose, set with setTcp
-    workspace_min_m: tuple = (-0.10, -0.10, 0.0)   # protective TCP box, task frame
-    workspace_max_m: tuple = (0.40, 0.40, 0.60)
-    default_speed_mps: float = 0.05     # a request's speed 0 means this
-    max_speed_mps: float = 0.25         # faster requests are capped to this
-    acceleration_mps2: float = 0.5      # moveL tool acceleration
-    stop_deceleration_mps2: float = 2.0  # stopL tool deceleration
-    call_timeout_s: float = 2.0          # any single RTDE call
-    connect_timeout_s: float = 15.0      # building the interfaces (uploads the control script)
-    motion_timeout_margin_s: float = 5.0  # on top of the expected motion time
-    position_tolerance_m: float = 0.002   # arrived = this close to the target ...
-    orientation_tolerance_deg: float = 1.0  # ... and this well aligned
-    poll_period_s: float = 0.02
-    payload_kg: float = 0.0              # > 0: setPayload(payload_kg, payload_cog_m) on connect
-    payload_cog_m: tuple = (0.0, 0.0, 0.0)
-
-    def check(self):
-        """Raise ValueError naming the first bad setting."""
-        X = np.asarray(self.X_task_base, float)
-        if X.shape != (4, 4) or not np.isfinite(X).all() or not np.allclose(X[:3, :3] @ X[:3, :3].T, np.eye(3), atol=1e-6):
-            raise ValueError("X_task_base must be a finite 4x4 rigid transform")
-        if len(self.tcp_in_flange) != 6 or not all(math.isfinite(v) for v in self.tcp_in_flange):
-            raise ValueError(f"tcp_in_flange must be 6 finite numbers [x, y, z, rx, ry, rz], got {list(self.tcp_in_flange)}")
-        lo, hi = np.asarray(self.workspace_min_m, float), np.asarray(self.workspace_max_m, float)
-        if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (lo >= hi).any():
-            raise ValueError(f"protective box: workspace_min_m {list(lo)} must be below workspace_max_m {list(hi)} on every axis (3 numbers each, m)")
-        for name in ("default_speed_mps", "max_speed_mps", "acceleration_mps2", "stop_deceleration_mps2",
-                     "call_timeout_s", "connect_timeout_s", "position_tolerance_m", "orientation_tolerance_deg",
-                     "poll_period_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be > 0, got {value}")
-        if self.default_speed_mps > self.max_speed_mps:
-            raise ValueError(f"default_speed_mps {self.default_speed_mps} exceeds max_speed_mps {self.max_speed_mps}")
-        if self.motion_timeout_margin_s < 0:
-            raise ValueError("motion_timeout_margin_s must be >= 0")
-
-
-@dataclasses.dataclass
 class MoveResult:
     """MoveToPose's response fields."""
     reachable: bool
     success: bool
     message: str
     joint_positions: list = dataclasses.field(default_factory=list)
-
-
-def xyz_yaw_to_matrix(xyz_yaw) -> np.ndarray:
-    """[x, y, z, yaw] (the executor's `arm_base_xyz_yaw`) -> 4x4: a base mounted upright."""
-    if len(xyz_yaw) != 4 or not all(math.isfinite(v) for v in xyz_yaw):
-        raise ValueError(f"base pose must be 4 finite numbers [x, y, z (m), yaw (rad)], got {list(xyz_yaw)}")
-    x, y, z, yaw = (float(v) for v in xyz_yaw)
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
-    X[:3, 3] = (x, y, z)
-    return X
-
-
-def matrix_to_ur_pose(X) -> list:
-    """4x4 -> [x, y, z, rx, ry, rz] (rotation vector), as ur_rtde takes poses."""
-    return [float(v) for v in X[:3, 3]] + [float(v) for v in Rotation.from_matrix(X[:3, :3]).as_rotvec()]
-
-
-def ur_pose_to_matrix(pose) -> np.ndarray:
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_rotvec(pose[3:6]).as_matrix()
-    X[:3, 3] = pose[:3]
-    return X
-
-
-class _CallThread:
-    """One daemon thread per connection running the RTDE calls in order. A call that
-    never returns leaves only this thread blocked (abandoned with the connection); a
-    daemon thread does not keep the process alive."""
-
-    def __init__(self):
-        self._calls = queue.Queue()
-        threading.Thread(target=self._run, name="rtde-calls", daemon=True).start()
-
-    def _run(self):
-        while True:
-            item = self._calls.get()
-            if item is None:
-                return
-            future, fn, args = item
-            if not future.set_running_or_notify_cancel():
-                continue
-            try:
-                future.set_result(fn(*args))
-            except BaseException as e:  # handed to the caller
-                future.set_exception(e)
-
-    def submit(self, fn, *args) -> concurrent.futures.Future:
-        future = concurrent.futures.Future()
-        self._calls.put((future, fn, args))
-        return future
-
-    def close(self):
-        self._calls.put(None)
 
 
 class URArm:
@@ -221,7 +117,7 @@ class URArm:
         raises ConnectionLost saying why it failed."""
         with self._link_lock:
             self._drop_locked("reconnecting")
-            calls = _CallThread()
+            calls = CallThread()
             try:
                 got = self._wait(calls.submit(self._connect), self.settings.connect_timeout_s,
                                  "connecting to the controller")
@@ -493,10 +389,3 @@ class URArm:
             except ConnectionLost:
                 pass  # the motion loop reports the lost link
         return True
-
-
-def pose_error(actual, target) -> tuple[float, float]:
-    """(position error m, orientation error deg) between two UR poses."""
-    dp = float(np.linalg.norm(np.subtract(actual[:3], target[:3])))
-    R = Rotation.from_rotvec(actual[3:6]).inv() * Rotation.from_rotvec(target[3:6])
-    return dp, float(np.degrees(R.magnitude()))

@@ -10,8 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fake_rtde import FakeURController
-from gravgrasp_detector.ur_arm import (ConnectionLost, URArm, URArmSettings, matrix_to_ur_pose, pose_error,
-                                       xyz_yaw_to_matrix)
+from gravgrasp_detector.ur_arm import ConnectionLost, URArm
+from gravgrasp_detector.ur_arm_settings import URArmSettings, xyz_yaw_to_matrix
+from gravgrasp_detector.ur_controller import matrix_to_ur_pose, pose_error
 
 DOWN = Rotation.from_euler("x", 180, degrees=True).as_matrix()  # TCP z pointing down
 

@@ -13,7 +13,7 @@ from std_srvs.srv import SetBool
 
 from gravgrasp_detector.cell_config import (CellConfigError, base_in_task, check_consistency, load_sections,
                                             params_files, plan, unknown_parameters)
-from gravgrasp_detector.ur_arm import xyz_yaw_to_matrix
+from gravgrasp_detector.ur_arm_settings import xyz_yaw_to_matrix
 from ros_testing import BackgroundSpin, wait_until
 
 pytestmark = pytest.mark.drake

@@ -1,0 +1,74 @@
+"""The UR controller as ur_rtde presents it (ur-rtde 1.6.5): its robot and safety mode
+codes, its pose format [x, y, z, rx, ry, rz] (metres, rotation vector in radians) with
+the conversions to 4x4 transforms and the error between two poses, and `CallThread`,
+which runs one connection's RTDE calls so that a call that never returns cannot hang
+the caller. No rclpy, no ur_rtde import.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import queue
+import threading
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+# ur_rtde's RTDEReceiveInterface.getRobotMode() and getSafetyMode() values (UR manual).
+ROBOT_MODES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
+               4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
+ROBOT_MODE_RUNNING = 7
+SAFETY_MODES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
+                6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
+                10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+                13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
+SAFETY_MODES_THAT_MOVE = (1, 2)  # NORMAL, REDUCED (reduced limits still allow motion)
+
+
+def matrix_to_ur_pose(X) -> list:
+    """4x4 -> [x, y, z, rx, ry, rz] (rotation vector), as ur_rtde takes poses."""
+    return [float(v) for v in X[:3, 3]] + [float(v) for v in Rotation.from_matrix(X[:3, :3]).as_rotvec()]
+
+
+def ur_pose_to_matrix(pose) -> np.ndarray:
+    X = np.eye(4)
+    X[:3, :3] = Rotation.from_rotvec(pose[3:6]).as_matrix()
+    X[:3, 3] = pose[:3]
+    return X
+
+
+def pose_error(actual, target) -> tuple[float, float]:
+    """(position error m, orientation error deg) between two UR poses."""
+    dp = float(np.linalg.norm(np.subtract(actual[:3], target[:3])))
+    R = Rotation.from_rotvec(actual[3:6]).inv() * Rotation.from_rotvec(target[3:6])
+    return dp, float(np.degrees(R.magnitude()))
+
+
+class CallThread:
+    """One daemon thread per connection running the RTDE calls in order. A call that
+    never returns leaves only this thread blocked (abandoned with the connection); a
+    daemon thread does not keep the process alive."""
+
+    def __init__(self):
+        self._calls = queue.Queue()
+        threading.Thread(target=self._run, name="rtde-calls", daemon=True).start()
+
+    def _run(self):
+        while True:
+            item = self._calls.get()
+            if item is None:
+                return
+            future, fn, args = item
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(fn(*args))
+            except BaseException as e:  # handed to the caller
+                future.set_exception(e)
+
+    def submit(self, fn, *args) -> concurrent.futures.Future:
+        future = concurrent.futures.Future()
+        self._calls.put((future, fn, args))
+        return future
+
+    def close(self):
+        self._calls.put(None)
