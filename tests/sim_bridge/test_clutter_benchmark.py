@@ -242,7 +242,7 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     top-down grasp 2.5 cm below its top -> executor, 1 s hold, shake, removal."""
     import dataclasses
 
-    from sim_bridge.datagen.object_grasps import procedural_sources
+    from sim_bridge.datagen.object_sources import procedural_sources
     from sim_bridge.world import R_TOP_DOWN
 
     source = procedural_sources(protocol.PROCEDURAL_POOL, protocol.PROCEDURAL_SEED)[1]

@@ -15,7 +15,8 @@ import trimesh
 
 from sim_bridge.datagen.antipodal_sampling import SamplingSettings
 from sim_bridge.datagen.cli import run_object_stage
-from sim_bridge.datagen.object_grasps import load_table, mesh_sources
+from sim_bridge.datagen.object_grasps import load_table
+from sim_bridge.datagen.object_sources import mesh_sources
 
 pytestmark = pytest.mark.drake
 
@@ -144,7 +145,7 @@ def test_killed_run_resumes_to_the_same_tables(good_meshes, reference, tmp_path)
 
 
 def test_a_table_only_rebuilds_the_object_it_was_made_for(reference, good_meshes, tmp_path):
-    from sim_bridge.datagen.object_grasps import object_from_table
+    from sim_bridge.datagen.object_sources import object_from_table
     from sim_bridge.physics.objects import ObjectError
 
     t = load_table(pathlib.Path(reference) / "objects" / "cylinder50.npz")

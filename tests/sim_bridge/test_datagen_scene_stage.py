@@ -9,7 +9,8 @@ import pytest
 import trimesh
 
 from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
-from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table, object_from_table
+from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
+from sim_bridge.datagen.object_sources import object_from_table
 from sim_bridge.datagen.scene_dataset import run_scene_stage
 from sim_bridge.datagen.voxel_labels import RESOLUTION
 from sim_bridge.physics import hand_collision

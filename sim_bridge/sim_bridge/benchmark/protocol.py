@@ -8,7 +8,7 @@ import functools
 
 import numpy as np
 
-from ..datagen.object_grasps import mesh_sources, procedural_sources
+from ..datagen.object_sources import mesh_sources, procedural_sources
 from ..physics.objects import ObjectError
 from ..physics.scenes import ARRANGEMENTS, arrange
 from ..world import BARE_MESH_DENSITY_KG_M3, STROKE_M

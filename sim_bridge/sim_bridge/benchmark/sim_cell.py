@@ -11,7 +11,7 @@ from gravgrasp_detector.grasp_execution import Abort, ExecutionLimits, GraspExec
 from robotiq_driver.gripper_client import GripperTimeout
 from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus
 
-from ..datagen.object_grasps import ObjectSource
+from ..datagen.object_sources import ObjectSource
 from ..physics.contact import SimSettings
 from ..world import STROKE_M, SceneConfig, SimWorld, WorldSettings
 from .clearing import Refused

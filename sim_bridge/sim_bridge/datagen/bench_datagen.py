@@ -35,7 +35,7 @@ from ..physics.grasp_simulation import GraspSimulator
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
 from .cli import sim_settings
-from .object_grasps import mesh_sources, procedural_sources, read_name_list
+from .object_sources import mesh_sources, procedural_sources, read_name_list
 from .resting_poses import find_resting_poses
 from .voxel_labels import RESOLUTION
 

@@ -29,8 +29,8 @@ from ..parallel import make_executor, run_tasks
 from ..physics.contact import SimSettings
 from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings
-from .object_grasps import (ObjectChunk, ObjectStageStore, RestTask, mesh_sources, procedural_sources, read_name_list,
-                            run_chunk, run_rest_task)
+from .object_grasps import ObjectChunk, ObjectStageStore, RestTask, run_chunk, run_rest_task
+from .object_sources import mesh_sources, procedural_sources, read_name_list
 from .scene_dataset import run_scene_stage
 
 

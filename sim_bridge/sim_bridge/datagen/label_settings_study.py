@@ -31,7 +31,8 @@ from ..parallel import make_executor, run_tasks
 from ..physics.grasp_simulation import GraspSimulator
 from ..physics.gravity_projection import gravity_rejection_score
 from .cli import sim_settings
-from .object_grasps import load_table, object_from_table
+from .object_grasps import load_table
+from .object_sources import object_from_table
 
 DEFAULT_SETTINGS = ("cap100_rate800=max_force_n=100,force_ramp_rate_n_s=800",
                     "cap60_rate800=max_force_n=60,force_ramp_rate_n_s=800")

@@ -48,7 +48,8 @@ from ..physics.depth_rendering import DepthRenderer, random_view_on_hemisphere
 from ..physics.gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
 from ..physics.scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from . import object_symmetry
-from .object_grasps import MODE_NAMES, load_table, object_from_table, shape_sha256
+from .object_grasps import MODE_NAMES, load_table
+from .object_sources import object_from_table, shape_sha256
 from .resting_poses import RestingPoses
 from .voxel_labels import RESOLUTION, voxel_labels
 

@@ -32,7 +32,8 @@ from ..parallel import make_executor, run_tasks, task_seed
 from ..physics.grasp_simulation import GraspSimulator
 from .cli import sim_settings
 from .label_settings_study import compare, f_g_matrix, gravity_directions_tcp
-from .object_grasps import load_table, object_from_table
+from .object_grasps import load_table
+from .object_sources import object_from_table
 from .object_symmetry import cached_symmetry_transforms
 
 CONTROL_SHIFT_M = 0.001
