@@ -1,7 +1,7 @@
 """Shared fixtures. Tests run from a shell that sourced ros_ws/env.sh (make test does).
 
 Layout: tests/<package>/ for each package's tests, tests/system/ for the cross-package
-end-to-end tests, tests/support/ for helpers (importable by name from any test),
+tests (end to end, and the import rules), tests/support/ for helpers (importable by name from any test),
 tests/data/ for recorded data. Markers (pytest.ini): `ros` is added here to every test
 that starts ROS nodes or a DDS participant (the ros_node / ros_process fixtures);
 modules that run Drake simulations mark themselves `drake`, tests that train a network
