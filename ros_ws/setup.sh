@@ -35,10 +35,12 @@ if [ ! -x "$root/.venv/bin/python" ]; then
 fi
 
 # 3. Exact pins. torch==2.13.0 resolves to the CPU build on this machine's disk.
+#    --no-compile: byte-compiling every installed module took ~1/3 of the install; Python
+#    compiles (and caches) only the modules that are imported, on their first import.
 lock_sum="$(sha256sum "$root/requirements.lock" | cut -d' ' -f1)"
 if [ "$(cat "$stamps/requirements" 2>/dev/null)" != "$lock_sum" ]; then
   say "installing requirements.lock (first time: a few minutes)"
-  if ! "$root/.venv/bin/pip" install -q --disable-pip-version-check -r "$root/requirements.lock" \
+  if ! "$root/.venv/bin/pip" install -q --no-compile --disable-pip-version-check -r "$root/requirements.lock" \
       > "$stamps/pip-install.log" 2>&1; then
     grep -v "^WARNING: Location" "$stamps/pip-install.log" | tail -20 >&2
     echo "[setup] error: pip install failed; full log in $stamps/pip-install.log" >&2
