@@ -67,7 +67,7 @@ def scenes(grasp_data, tmp_path_factory):
 
 
 def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
-    total, copies = 0, 0
+    total, copies, mirrored = 0, 0, 0
     symmetries = {p.stem: np.load(p)["transforms"] for p in (grasp_data / "objects" / "symmetry").glob("*.npz")}
     for name, S in symmetries.items():  # every copy moves the surface onto itself
         m = trimesh.load(grasp_data / "meshes" / f"{name}.obj")
@@ -96,20 +96,26 @@ def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
             t = tables[k]
             assert t["grasped"][row] and z["label_mode"][i] == t["mode"][row] != 2
             assert str(z["label_pose"]) == "commanded"
-            # a simulated grasp, or its copy at a symmetry of the object (object_symmetry)
+            # a simulated grasp, or its copy at a symmetry of the object (object_symmetry;
+            # at a reflection the hand is mirrored too, and its +x and -x scores exchange)
             S = symmetries[str(z["object_names"][k])][z["label_symmetry"][i]]
-            X = X_obj[k] @ S @ t["X_object_tcp_candidate"][row].astype(np.float64)
+            is_mirror = np.linalg.det(S[:3, :3]) < 0
+            mirrored += int(is_mirror)
+            M = np.diag([-1.0, 1, 1, 1]) if is_mirror else np.eye(4)
+            X = X_obj[k] @ S @ t["X_object_tcp_candidate"][row].astype(np.float64) @ M
+            assert np.linalg.det(X[:3, :3]) == pytest.approx(1.0)
+            scores = t["scores_n"][row][[1, 0, 2, 3, 4, 5]] if is_mirror else t["scores_n"][row]
             # the label sits in the voxel of the grasp's TCP, with its axes
             np.testing.assert_array_equal(z["label_index"][i], np.floor(X[:3, 3] / (VOLUME_SIZE_M / RESOLUTION)))
             np.testing.assert_allclose(z["label_e_x"][i], X[:3, 0], atol=1e-5)
             np.testing.assert_allclose(z["label_e_z"][i], X[:3, 2], atol=1e-5)
             # f_g is Eq. 1 of this grasp's scores in this scene's pose
-            assert z["label_score"][i] == pytest.approx(gravity_rejection_score(t["scores_n"][row], X[:3, :3]), rel=1e-5)
+            assert z["label_score"][i] == pytest.approx(gravity_rejection_score(scores, X[:3, :3]), rel=1e-5)
             # and the open hand there, with its approach, clears the table and every object
             # (its own too: the commanded pose is where the open hand really goes)
             obst = np.concatenate(others)
             assert not hand_collision.collides(X, obst, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)[0]
-    assert total > 30 and 0 < copies < total
+    assert total > 30 and 0 < copies < total and 0 < mirrored < copies
 
 
 def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(grasp_data, scenes, tmp_path):
@@ -125,6 +131,17 @@ def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(gras
     assert sorted(a.files) == sorted(b.files)
     for key in a.files:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_mirror_copies_can_be_left_out(grasp_data, scenes, tmp_path):
+    s = run_scene_stage(tmp_path, grasp_data / "objects", [grasp_data / "meshes"], 1, seed=5, workers=1,
+                        max_objects=3, max_views=3, progress=False, mirrors=False)
+    assert s["done"] == 1 and s["error"] == 0
+    rotations = np.load(tmp_path / "scenes" / "000000.npz")
+    both = np.load(scenes / "scenes" / "000000.npz")
+    np.testing.assert_array_equal(rotations["tsdf"], both["tsdf"])
+    assert not bool(rotations["mirrors"]) and bool(both["mirrors"])
+    assert int(rotations["n_labels_without_copies"]) < len(rotations["label_score"]) < len(both["label_score"])
 
 
 def test_without_symmetry_a_scene_has_just_the_simulated_grasps_labels(grasp_data, scenes, tmp_path):

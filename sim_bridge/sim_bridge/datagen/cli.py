@@ -209,7 +209,9 @@ def main(argv=None):
                          "the object settled in the hand (the v1 dataset)")
     sc.add_argument("--no-symmetry", action="store_true",
                     help="place only the simulated grasps (default: also their copies at each rotational "
-                         "symmetry of the object, which hold alike; see object_symmetry)")
+                         "and mirror symmetry of the object, which hold alike; see object_symmetry)")
+    sc.add_argument("--no-mirror-copies", action="store_true",
+                    help="copies at rotational symmetries only (none at mirror symmetries)")
 
     args = p.parse_args(argv)
     try:
@@ -241,7 +243,8 @@ def _run(p, args):
         return 1 if s["error"] else 0
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
                         max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
-                        label_pose=args.label_pose, symmetry=not args.no_symmetry)
+                        label_pose=args.label_pose, symmetry=not args.no_symmetry,
+                        mirrors=not args.no_mirror_copies)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
 

@@ -13,7 +13,9 @@ For scene i (seed from --seed and i only):
    robot will command, so labels and execution agree about the approach;
    "settled" uses the hand pose after the object settled in it (the v1 dataset);
    with `symmetry` (default) every grasp is also placed at each rotational
-   symmetry of its object (object_symmetry: same contacts, same scores);
+   symmetry of its object (object_symmetry: same contacts, same scores) and,
+   with `mirrors` (default), at each mirror symmetry (the hand mirrored too:
+   +x and -x scores exchanged);
 4. drop a grasp if the open hand at that pose, or on its last `approach_m` of
    straight approach, intersects the table or another object (and, for
    commanded poses, the grasped object itself);
@@ -71,6 +73,7 @@ class SceneTask:
     settings: SceneSettings = SceneSettings()
     label_pose: str = "commanded"   # | "settled"
     symmetry: bool = True           # also place grasps at the object's symmetries
+    mirrors: bool = True            # ... its mirror symmetries included
 
 
 def usable_tables(objects_dir):
@@ -133,8 +136,11 @@ def _run_scene(task):
             S = object_symmetry.cached_symmetry_transforms(
                 pathlib.Path(task.objects_dir).parent / "symmetry", str(t["name"]),
                 str(t["shape_sha256"]) if "shape_sha256" in t else shape_sha256(specs[k]), meshes[k], specs[k].com_m)
+            if not task.mirrors:
+                S = S[~object_symmetry.is_mirror(S)]  # the rotations, first in S: their indices stay
             X, src = object_symmetry.replicate(X, S)
             rows, sym = rows[src], np.repeat(np.arange(len(S)), len(src) // len(S))
+            mirrored = object_symmetry.is_mirror(S)
         X = X_obj[None] @ X
         n_projected += len(rows)
         # the settled hand touches its object by definition; a commanded pose must clear it
@@ -143,7 +149,10 @@ def _run_scene(task):
         free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
         X, rows, sym = X[free], rows[free], sym[free]
         X_all.append(X)
-        f_all.append(gravity_rejection_score(t["scores_n"][rows], X[:, :3, :3]) if len(rows) else np.zeros(0))
+        scores = t["scores_n"][rows]
+        if task.symmetry:
+            scores = object_symmetry.copy_scores(scores, mirrored[sym])
+        f_all.append(gravity_rejection_score(scores, X[:, :3, :3]) if len(rows) else np.zeros(0))
         mode_all.append(t["mode"][rows])
         obj_all.append(np.full(len(rows), k))
         row_all.append(rows)
@@ -171,6 +180,7 @@ def _run_scene(task):
         table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
         gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
         label_pose=np.asarray(task.label_pose), symmetry=np.asarray(task.symmetry),
+        mirrors=np.asarray(task.symmetry and task.mirrors),
         mode_names=np.asarray(MODE_NAMES), seed=np.asarray(task_seed(task.master_seed, "scene", task.index), np.uint64),
     )
 
@@ -205,7 +215,7 @@ class SceneStore:
 
 def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
                     max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings(),
-                    label_pose="commanded", symmetry=True):
+                    label_pose="commanded", symmetry=True, mirrors=True):
     """Generate scenes 0..n_scenes-1 that do not exist yet; returns a summary dict."""
     objects_dir = pathlib.Path(objects_out_dir) / "objects"
     names = tuple(usable_tables(objects_dir))
@@ -218,7 +228,7 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     if label_pose not in ("commanded", "settled"):
         raise ValueError(f"label_pose {label_pose!r}: use 'commanded' or 'settled'")
     manifest = dict(seed=seed, max_objects=max_objects, max_views=max_views, label_pose=label_pose,
-                    symmetry=bool(symmetry),
+                    symmetry=bool(symmetry), mirrors=bool(symmetry and mirrors),
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names))
@@ -232,7 +242,8 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     else:
         atomic_files.save_json(mpath, manifest)
     tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
-                       settings=settings, label_pose=label_pose, symmetry=bool(symmetry))
+                       settings=settings, label_pose=label_pose, symmetry=bool(symmetry),
+                       mirrors=bool(symmetry and mirrors))
              for i in range(n_scenes) if not store.path(i).exists()]
     errors = []
 

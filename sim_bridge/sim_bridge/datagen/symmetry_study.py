@@ -15,7 +15,10 @@ capped at the table's force cap) between original and copy; per-direction MAE.
 The copies belong in the training scenes if they agree with their original about
 as well as the 1 mm control does: held within 5 points of it, Spearman f_g within
 0.02 (a 90 % bootstrap interval of the Spearman difference says how sure that
-is; decide on >= 200 grasps).  Last line: `symmetry_spearman_f_g=...`.
+is; decide on >= 200 grasps).  `--copies mirror` studies the mirror copies
+instead (a reflection of the object with the hand mirrored, object_symmetry):
+their +x and -x scores are compared with the original's -x and +x.
+Last line: `symmetry_spearman_f_g=...`.
 """
 
 import argparse
@@ -34,7 +37,7 @@ from .cli import sim_settings
 from .label_settings_study import compare, f_g_matrix, gravity_directions_tcp
 from .object_grasps import load_table
 from .object_sources import object_from_table
-from .object_symmetry import cached_symmetry_transforms
+from .object_symmetry import cached_symmetry_transforms, copy_scores, is_mirror, replicate
 
 CONTROL_SHIFT_M = 0.001
 
@@ -62,9 +65,10 @@ def run_study_task(task: StudyTask):
     return out
 
 
-def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed):
-    """[(table path, rows, poses)] for up to `n_objects` symmetric tables (procedural and
-    mesh objects alternating where possible), `per_object` held grasps each."""
+def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed, copies="rotation"):
+    """[(table path, rows, poses)] for up to `n_objects` tables of objects with a symmetry
+    of the kind `copies` ("rotation" or "mirror"; procedural and mesh objects alternating
+    where possible), `per_object` held grasps each."""
     rng = np.random.default_rng(seed)
     paths = sorted(pathlib.Path(tables_dir, "objects").glob("*.npz"))
     pools = {"mesh": [], "procedural": []}
@@ -87,7 +91,9 @@ def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed):
         spec = object_from_table(t, mesh_dirs)
         S = cached_symmetry_transforms(pathlib.Path(tables_dir, "symmetry"), str(t["name"]),
                                        str(t["shape_sha256"]), spec.collision_mesh(), t["com_m"])
-        if len(S) < 2:
+        kind = np.flatnonzero(is_mirror(S) == (copies == "mirror"))
+        kind = kind[kind > 0]  # not the identity
+        if len(kind) == 0:
             continue
         r = np.random.default_rng(task_seed(seed, "symmetry_study", str(t["name"])))
         rows = np.sort(r.choice(np.flatnonzero(t["grasped"]), size=per_object, replace=False))
@@ -97,7 +103,8 @@ def pick_grasps(tables_dir, mesh_dirs, n_objects, per_object, seed):
             shift = r.normal(size=3)
             C = X.copy()
             C[:3, 3] += CONTROL_SHIFT_M * shift / np.linalg.norm(shift)
-            poses.append((X, S[r.integers(1, len(S))] @ X, C))
+            copy, _ = replicate(X, S[kind[r.integers(len(kind))]])
+            poses.append((X, copy[0], C))
         chosen.append((str(p), tuple(int(x) for x in rows), np.asarray(poses)))
     return chosen
 
@@ -166,6 +173,8 @@ def main(argv=None):
     p.add_argument("--objects", type=int, default=30)
     p.add_argument("--per-object", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--copies", choices=("rotation", "mirror"), default="rotation",
+                   help="which symmetric copies to simulate")
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--out", default="out/symmetry_study.json")
     p.add_argument("--summarize", metavar="JSON", help="no simulation: report again from a study's raw results")
@@ -178,9 +187,9 @@ def main(argv=None):
                                                               "scores_control_1mm")], raw["cap_n"], args.seed)
         return finish(report, args.out)
 
-    chosen = pick_grasps(args.tables, tuple(args.meshes), args.objects, args.per_object, args.seed)
+    chosen = pick_grasps(args.tables, tuple(args.meshes), args.objects, args.per_object, args.seed, args.copies)
     if not chosen:
-        p.error(f"no table in {args.tables}/objects is of a symmetric object with {args.per_object} held grasps")
+        p.error(f"no table in {args.tables}/objects is of an object with a {args.copies} symmetry and {args.per_object} held grasps")
     results = {}
 
     def on_result(task, out):
@@ -196,8 +205,11 @@ def main(argv=None):
     cap = min(float(json.loads(str(t["sim_settings"]))["max_force_n"]) for t in tables.values())
     held = np.array([[res[i][0] for i in range(3)] for res in (results[k] for k in keys)])
     scores = [np.array([results[k][i][1] for k in keys]) for i in range(3)]
+    # a mirror copy's +x is the original's -x: compare like with like
+    scores[1] = copy_scores(scores[1], np.full(len(keys), args.copies == "mirror"))
     report = summarize([(pathlib.Path(pth).stem, int(r)) for pth, r in keys],
                        [str(tables[pth]["source_kind"]) for pth, _ in keys], held, scores, cap, args.seed)
+    report["copies"] = args.copies
     return finish(report, args.out)
 
 
