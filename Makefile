@@ -23,7 +23,7 @@ help:
 	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
-	@echo "make symmetry-study - grasps copied to an object's symmetries, simulated against their originals"
+	@echo "make symmetry-study - grasps copied to an object's symmetries, simulated against their originals (COPIES=rotation|mirror)"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - v2 training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 	@echo "make data-objects-v1 / data-scenes-v1 - the v1 dataset of the shipped models"
@@ -89,6 +89,7 @@ GRASPS ?= 64
 SCENES ?= 5000
 WORKERS ?= 2
 PROCEDURAL ?= 100
+COPIES ?= rotation
 LABEL_SETTINGS := --sim-setting time_step_s=0.001 --sim-setting max_force_n=100 --sim-setting force_ramp_rate_n_s=800
 HELD_OUT := models/vgn_heldout_meshes.txt
 data-objects: setup
@@ -118,8 +119,8 @@ label-settings-study: setup
 # Do grasps copied to an object's symmetries hold as the simulated ones do? (240 grasps x 3
 # simulations, ~40 min on 2 free cores)
 symmetry-study: setup
-	@$(ROS) ros2 run sim_bridge symmetry_study --tables models/grasp_tables_v2 \
-	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS) --out out/symmetry_study.json
+	@$(ROS) ros2 run sim_bridge symmetry_study --tables models/grasp_tables_v2 --copies $(COPIES) \
+	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS) --out out/symmetry_study$(if $(filter mirror,$(COPIES)),_mirror).json
 
 # Dataset v1 (the shipped models' data): free sampler, settled poses.
 data-objects-v1: setup

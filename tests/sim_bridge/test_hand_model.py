@@ -84,8 +84,9 @@ def test_hand_geometry_links_are_valid_after_finalize(pad_contact_points):
     assert sum(n.endswith("_pad") for n in stored.values()) >= (18 if pad_contact_points else 2)
 
 
-def hand_surface_tcp(driver_rad):
-    """Collision surface of the hand in its TCP frame at a driver angle: (trimesh hulls)."""
+
+def hand_surfaces_tcp(driver_angles_rad):
+    """Collision surface of the hand in its TCP frame at each driver angle: [[trimesh hull]]."""
     import trimesh
     from pydrake.geometry import Box, Convex, Mesh
 
@@ -96,43 +97,48 @@ def hand_surface_tcp(driver_rad):
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
     pc = plant.GetMyContextFromRoot(ctx)
-    for j in hand.driver_joints:
-        j.set_angle(pc, driver_rad)
-    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(ctx))
-    inspector = query.inspector()
-    X_tcp_W = np.linalg.inv(hand.tcp_frame.CalcPoseInWorld(pc).GetAsMatrix4())
-    hulls = []
-    for gid in inspector.GetAllGeometryIds():
-        if inspector.GetProximityProperties(gid) is None:
-            continue
-        shape = inspector.GetShape(gid)
-        if isinstance(shape, (Convex, Mesh)):
-            m = trimesh.load(shape.source().path(), force="mesh")
-            m.apply_scale(shape.scale3()[0])
-        else:
-            assert isinstance(shape, Box), type(shape)
-            m = trimesh.creation.box(extents=[shape.width(), shape.depth(), shape.height()])
-        m = m.convex_hull
-        m.apply_transform(X_tcp_W @ query.GetPoseInWorld(gid).GetAsMatrix4())
-        hulls.append(m)
-    return hulls
+    shapes = {}
+    out = []
+    for angle in driver_angles_rad:
+        for j in hand.driver_joints:
+            j.set_angle(pc, angle)
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(ctx))
+        inspector = query.inspector()
+        X_tcp_W = np.linalg.inv(hand.tcp_frame.CalcPoseInWorld(pc).GetAsMatrix4())
+        hulls = []
+        for gid in inspector.GetAllGeometryIds():
+            if inspector.GetProximityProperties(gid) is None:
+                continue
+            if gid not in shapes:
+                shape = inspector.GetShape(gid)
+                if isinstance(shape, (Convex, Mesh)):
+                    m = trimesh.load(shape.source().path(), force="mesh")
+                    m.apply_scale(shape.scale3()[0])
+                else:
+                    assert isinstance(shape, Box), type(shape)
+                    m = trimesh.creation.box(extents=[shape.width(), shape.depth(), shape.height()])
+                shapes[gid] = m.convex_hull
+            m = shapes[gid].copy()
+            m.apply_transform(X_tcp_W @ query.GetPoseInWorld(gid).GetAsMatrix4())
+            hulls.append(m)
+        out.append(hulls)
+    return out
 
 
-@pytest.mark.parametrize("driver_rad", [0.0, 0.4])
-def test_the_hand_is_its_own_mirror_image_about_the_tcp_yz_plane(driver_rad):
+def test_the_hand_is_its_own_mirror_image_about_the_tcp_yz_plane():
     """object_symmetry's mirror copies rest on this: x -> -x in the TCP frame maps the
     hand's collision geometry onto itself, open and closing (and z -> -z does not)."""
     import open3d as o3d
 
-    hulls = hand_surface_tcp(driver_rad)
-    scene = o3d.t.geometry.RaycastingScene()
-    for m in hulls:
-        scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, np.float32)),
-                            o3d.core.Tensor(np.asarray(m.faces, np.uint32)))
-    points = np.concatenate([m.sample(300, seed=i) for i, m in enumerate(hulls)])
+    for hulls in hand_surfaces_tcp([0.0, 0.4]):
+        scene = o3d.t.geometry.RaycastingScene()
+        for m in hulls:
+            scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, np.float32)),
+                                o3d.core.Tensor(np.asarray(m.faces, np.uint32)))
+        points = np.concatenate([m.sample(300, seed=i) for i, m in enumerate(hulls)])
 
-    def off_surface_m(p):
-        return scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy()
+        def off_surface_m(p):
+            return scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy()
 
-    assert off_surface_m(points * [-1, 1, 1]).max() < 1e-4
-    assert np.quantile(off_surface_m(points * [1, 1, -1] + [0, 0, 0.1]), 0.5) > 0.01
+        assert off_surface_m(points * [-1, 1, 1]).max() < 1e-4
+        assert np.quantile(off_surface_m(points * [1, 1, -1] + [0, 0, 0.1]), 0.5) > 0.01
