@@ -133,11 +133,16 @@ def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(gras
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
 
 
-def test_mirror_copies_can_be_left_out(grasp_data, scenes, tmp_path):
-    s = run_scene_stage(tmp_path, grasp_data / "objects", [grasp_data / "meshes"], 1, seed=5, workers=1,
-                        max_objects=3, max_views=3, progress=False, mirrors=False)
+def first_scene(grasp_data, out, **options):
+    """Scene 0 of the module's seed, made again with other options."""
+    s = run_scene_stage(out, grasp_data / "objects", [grasp_data / "meshes"], 1, seed=5, workers=1,
+                        max_objects=3, max_views=3, progress=False, **options)
     assert s["done"] == 1 and s["error"] == 0
-    rotations = np.load(tmp_path / "scenes" / "000000.npz")
+    return np.load(out / "scenes" / "000000.npz")
+
+
+def test_mirror_copies_can_be_left_out(grasp_data, scenes, tmp_path):
+    rotations = first_scene(grasp_data, tmp_path, mirrors=False)
     both = np.load(scenes / "scenes" / "000000.npz")
     np.testing.assert_array_equal(rotations["tsdf"], both["tsdf"])
     assert not bool(rotations["mirrors"]) and bool(both["mirrors"])
@@ -145,10 +150,7 @@ def test_mirror_copies_can_be_left_out(grasp_data, scenes, tmp_path):
 
 
 def test_without_symmetry_a_scene_has_just_the_simulated_grasps_labels(grasp_data, scenes, tmp_path):
-    s = run_scene_stage(tmp_path, grasp_data / "objects", [grasp_data / "meshes"], 1, seed=5, workers=1,
-                        max_objects=3, max_views=3, progress=False, symmetry=False)
-    assert s["done"] == 1 and s["error"] == 0
-    plain = np.load(tmp_path / "scenes" / "000000.npz")
+    plain = first_scene(grasp_data, tmp_path, symmetry=False)
     copied = np.load(scenes / "scenes" / "000000.npz")
     # the same scene (seeded), labelled from the simulated grasps only
     np.testing.assert_array_equal(plain["tsdf"], copied["tsdf"])
