@@ -21,7 +21,7 @@ import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy
 from rclpy.serialization import deserialize_message, serialize_message
-from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2 import Reader, ReaderError, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 from ament_index_python.packages import get_package_share_directory, PackageNotFoundError
@@ -102,6 +102,10 @@ class BagPlayer:
         self.topics = list(topics)
         self.publishers = {}
         with Reader(self.path) as reader:
+            missing = sorted(set(self.topics) - {c.topic for c in reader.connections})
+            if missing:
+                raise LookupError(f"{self.path} has no topic {', '.join(missing)}; its topics: "
+                                  f"{', '.join(sorted({c.topic for c in reader.connections})) or 'none'}")
             for c in reader.connections:
                 if not self.topics or c.topic in self.topics:
                     self.publishers[c.topic] = node.create_publisher(
@@ -155,6 +159,10 @@ def main(argv=None) -> int:
         node.get_logger().info(f"played {count} messages from {args.bag}")
     except (LookupError, OSError) as err:
         print(f"bag_play: {err}", file=sys.stderr)
+        return 1
+    except ReaderError as err:  # a damaged or unsupported bag (metadata, storage file)
+        first = (str(err).strip().splitlines() or ["no detail"])[0]  # YAML errors run over lines
+        print(f"bag_play: {args.bag} cannot be read as a rosbag2 directory: {first}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         pass

@@ -1,4 +1,5 @@
 """gravgrasp_msgs over real DDS between two processes, and rosbag2 record/replay."""
+import subprocess
 import sys
 
 import pytest
@@ -94,3 +95,21 @@ def test_rosbag_replay_delivers_every_message_in_order(ros_node, tmp_path, stora
     assert [m.header.stamp.sec for t, m in received if t.endswith("image_raw")] == list(range(100, 106))
     assert bytes(received[2][1].data) == bytes(frames[1][0].data)
     assert _wire(received[-1][1]) == _wire(grasps)
+
+
+
+def test_bag_play_names_a_missing_topic_and_a_damaged_bag_in_one_line(tmp_path):
+    image, info = _camera_frames(1)[0]
+    bag = bag_replay.write_bag(tmp_path / "bag", [("/camera/depth/image_raw", image, 10**9),
+                                                  ("/camera/depth/camera_info", info, 10**9 + 1)])
+    damaged = tmp_path / "damaged"
+    damaged.mkdir()
+    (damaged / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9, storage_identifier: mcap")
+    for args, expected in [([str(bag), "--rate", "0", "--topics", "/camera/depth/image_raw", "/depth"],
+                            "has no topic /depth; its topics: /camera/depth/camera_info, /camera/depth/image_raw"),
+                           ([str(damaged)], "cannot be read as a rosbag2 directory")]:
+        run = subprocess.run([sys.executable, "-m", "gravgrasp_detector.bag_replay", *args],
+                             capture_output=True, text=True, timeout=60)
+        assert run.returncode == 1, run.stderr
+        lines = run.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("bag_play: ") and expected in lines[0], run.stderr
