@@ -89,12 +89,16 @@ GRASPS ?= 64
 SCENES ?= 5000
 WORKERS ?= 2
 PROCEDURAL ?= 100
+# v2's objects: the first 220 of the round-robin order (all 100 procedural, 120 VGN meshes;
+# ~204 with a table). CPU goes into more candidates per object (GRASPS=128, 256), which is
+# what raises labels per scene, rather than into the other 135 meshes.
+OBJECTS ?= 220
 COPIES ?= rotation
 LABEL_SETTINGS := --sim-setting time_step_s=0.001 --sim-setting max_force_n=100 --sim-setting force_ramp_rate_n_s=800
 HELD_OUT := models/vgn_heldout_meshes.txt
 data-objects: setup
 	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
-	  --procedural $(PROCEDURAL) --grasps-per-object $(GRASPS) $(LABEL_SETTINGS) --seed 0 \
+	  --procedural $(PROCEDURAL) --limit $(OBJECTS) --grasps-per-object $(GRASPS) $(LABEL_SETTINGS) --seed 0 \
 	  --out models/grasp_tables_v2 --workers $(WORKERS)
 
 data-scenes: setup
