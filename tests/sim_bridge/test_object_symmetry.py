@@ -51,7 +51,7 @@ def test_a_can_turns_about_its_axis_and_end_over_end():
     assert len(T) == object_symmetry.MAX_ROTATIONS
     _check_group(m, T)
     axes_z = [X for X in T if np.allclose(X[:3, 2], [0, 0, 1])]
-    assert len(axes_z) == 12  # 30 degree steps about the axis
+    assert len(axes_z) == 24  # 15 degree steps about the axis
     full = symmetry_transforms(m, m.center_mass)
     mirrored = is_mirror(full)
     assert len(full) == object_symmetry.MAX_ELEMENTS and mirrored.sum() >= 12

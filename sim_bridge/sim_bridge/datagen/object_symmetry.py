@@ -17,7 +17,7 @@ with M = HAND_MIRROR_TCP (x -> -x), is a proper pose that occupies the mirror
 image of the original hand.  Physics is mirror-invariant, so that grasp holds
 alike, with its +x and -x scores exchanged (`copy_scores`).
 
-Candidate rotations are k/n turns (n = 2, 3, 4, 6, 12) about the object's
+Candidate rotations are k/n turns (n = 2, 3, 4, 6, 12, 24) about the object's
 principal inertia axes, its oriented-bounding-box axes (square-section boxes have
 no unique inertia axes; skipped for hulls of > 1000 faces) and frame axes;
 candidate reflections are through the planes through the centre of mass normal to
@@ -36,9 +36,9 @@ import trimesh
 from gravgrasp_detector import atomic_files
 
 TOL_M = 0.001
-TURNS = (2, 3, 4, 6, 12)
-MAX_ROTATIONS = 24
-MAX_ELEMENTS = 48  # rotations and reflections
+TURNS = (2, 3, 4, 6, 12, 24)  # 24: 15 degree steps move a point 3 cm off the axis by a voxel (7.8 mm)
+MAX_ROTATIONS = 48
+MAX_ELEMENTS = 96  # rotations and reflections
 N_POINTS = 1500
 # The hand's own mirror symmetry, in the TCP frame: x -> -x (z approach, y closing).
 HAND_MIRROR_TCP = np.diag([-1.0, 1.0, 1.0, 1.0])
