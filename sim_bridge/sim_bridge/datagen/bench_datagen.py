@@ -21,7 +21,6 @@ the first meshes of that directory that are not in --exclude.
 """
 
 import argparse
-import pathlib
 import sys
 import time
 from dataclasses import dataclass

@@ -192,8 +192,8 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
     on a flat face cannot resist twisting and small boxes spun forever; the grid gives
     the pad a contact area. (Hydroelastic pads have one already: leave it off.)
     """
-    # lazy: pydrake; the datagen and hand_collision import this module for
-    # the hand's dimensions in processes that never load Drake (seconds, ~70 MB each).
+    # lazy: pydrake; a module that needs only the hand's dimensions or model file can
+    # import this one without loading Drake (seconds and ~70 MB).
     from pydrake.geometry import RoleAssign, Sphere
     from pydrake.math import RigidTransform
     from pydrake.multibody.parsing import Parser

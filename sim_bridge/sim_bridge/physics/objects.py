@@ -5,8 +5,8 @@ collision `Part`s in the object frame. Convex pieces keep contact fast and let e
 piece be a compliant hydroelastic body (a non-convex `.obj` would act as its hull).
 
 pydrake (and `contact`, which loads it) is imported inside the two methods that build
-Drake geometry: the datagen's mesh stages use this module in worker processes that never
-simulate, and Drake costs each of them seconds and ~70 MB.
+Drake geometry, so that objects (shapes, masses, meshes) can be described and sampled
+without loading Drake, which costs a process seconds and ~70 MB.
 """
 
 from __future__ import annotations

@@ -16,8 +16,8 @@ Objects that end up outside the workspace are removed and the rest settled again
 The Drake model: one MultibodyPlant (point contact, SAP, gravity) with the table
 welded to the world and every object a free body; `build_scene_diagram` makes the
 diagram, `settle` simulates it until every body is at rest. (Both import pydrake
-themselves: the datagen imports this module for the table and the arrangements in
-worker processes that never simulate, and Drake costs each of them seconds and ~70 MB.)
+themselves, so that the table and the arrangements can be read without loading Drake,
+which costs a process seconds and ~70 MB.)
 """
 
 from dataclasses import dataclass
