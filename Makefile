@@ -90,7 +90,7 @@ SCENES ?= 5000
 WORKERS ?= 2
 PROCEDURAL ?= 100
 # v2's objects: the first 220 of the round-robin order (all 100 procedural, 120 VGN meshes;
-# ~204 with a table). CPU goes into more candidates per object (GRASPS=128, 256), which is
+# 203 with a table). CPU goes into more candidates per object (GRASPS=128, 256), which is
 # what raises labels per scene, rather than into the other 135 meshes.
 OBJECTS ?= 220
 COPIES ?= rotation
