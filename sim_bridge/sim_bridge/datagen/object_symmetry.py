@@ -138,7 +138,7 @@ def symmetry_transforms(mesh, com_m, tol_m=TOL_M, max_elements=MAX_ELEMENTS, n_p
         for axis in axes:
             add(_through(axis, com))
         close()
-        group = [G for G in group if not is_mirror([G])[0]] + [G for G in group if is_mirror([G])[0]]
+        group = [group[i] for i in np.argsort(is_mirror(group), kind="stable")]  # rotations first
     return np.asarray(group)
 
 
