@@ -3,7 +3,8 @@
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 ROS := set +u; source ros_ws/env.sh; set -u;
-PYTEST_ARGS ?=
+# Both cores, one test file per worker (a file's module fixtures, e.g. a sim world, are built once).
+PYTEST_ARGS ?= -n 2 --dist loadfile
 
 .PHONY: help setup build test demo lock bench-detect bench-sim bench-gripper data-report data-objects data-scenes
 
