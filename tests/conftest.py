@@ -8,6 +8,7 @@ modules that run Drake simulations mark themselves `drake`, tests that train a n
 `slow`. The quick subset:
     python -m pytest -m "not ros and not drake and not slow and not soak"
 """
+import collections
 import os
 import pathlib
 import sys
@@ -23,12 +24,30 @@ import ros_testing  # noqa: E402  (from tests/support, put on the path above)
 _DOMAIN = ros_testing.claim_domain_id()
 os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+# `make test` runs two pytest workers on a 2-core machine (pytest-xdist): one math
+# thread per process (this one and the nodes it starts) instead of two each fighting
+# over the same cores.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+HEAVY_MARKERS = ("ros", "drake", "slow", "soak")
 
 
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if {"ros_node", "ros_process"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.ros)
+    # Heavy files first, each kept whole and in order: those with the most kinds of heavy
+    # work (ROS processes and Drake: the end-to-end tests, the soak), then the rest of
+    # the heavy ones, the quick files last. `make test`'s two workers take whole files
+    # in this order, so the quick files fill the gaps at the end instead of one worker
+    # running the end-to-end tests alone.
+    weight = collections.Counter()
+    for item in items:
+        marks = {m for m in HEAVY_MARKERS if item.get_closest_marker(m)}
+        weight[item.path] = max(weight[item.path], len(marks))
+    items.sort(key=lambda item: -weight[item.path])
 
 
 def pytest_report_header(config):

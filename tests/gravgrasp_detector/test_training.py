@@ -108,7 +108,9 @@ def test_auroc_matches_hand_computed_values():
 
 @pytest.mark.slow  # trains three times (minutes)
 def test_training_learns_and_resumes_deterministically(scenes, tmp_path):
-    common = dict(data=str(scenes), batch_size=4, learning_rate=3e-3, seed=3, threads=2)
+    # One thread: `make test` runs two test files at once on two cores, and two OpenMP
+    # threads waiting on a busy core made this test 3-4x slower there.
+    common = dict(data=str(scenes), batch_size=4, learning_rate=3e-3, seed=3, threads=1)
     full = training_loop.train(TrainConfig(out=str(tmp_path / "a"), epochs=4, **common), progress=False)
     history = json.loads((tmp_path / "a" / "history.json").read_text())
     assert len(history) == 4
@@ -133,7 +135,7 @@ def test_variants_train_and_record_their_target(scenes, tmp_path):
     for extra in ({"rotation": "quat"}, {"target": "binary", "nominal_mass_kg": 3.5},
                   {"subset": "precision-only"}):
         out = tmp_path / "-".join(map(str, extra.values()))
-        training_loop.train(TrainConfig(data=str(scenes), out=str(out), epochs=1, batch_size=5, **extra),
+        training_loop.train(TrainConfig(data=str(scenes), out=str(out), epochs=1, batch_size=5, threads=1, **extra),
                        progress=False)
         _, meta = model_file.load_model(out / "model.pt")
         for key, value in extra.items():

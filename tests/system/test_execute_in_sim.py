@@ -23,7 +23,7 @@ from std_srvs.srv import SetBool, Trigger
 from gravgrasp_detector.tsdf_node import VOLUME_QOS
 from ros_testing import BackgroundSpin, spin_until, wait_until
 
-pytestmark = pytest.mark.drake
+pytestmark = [pytest.mark.drake, pytest.mark.ros]  # ros: its module fixture starts the nodes
 
 R = ExecuteGrasp.Response
 SHIPPED_MODEL = pathlib.Path(__file__).resolve().parents[2] / "models" / "gravgrasp.pt"
