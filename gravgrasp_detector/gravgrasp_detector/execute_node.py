@@ -211,6 +211,7 @@ class ExecuteNode(Node):
         return response
 
     def _run(self, request):
+        self.executor_core.refuse_if_estopped("execute a grasp")  # before the view's age, too
         if request.use_index:
             grasps = self.latest_grasps
             if grasps is None or request.grasp_index >= len(grasps.grasps):

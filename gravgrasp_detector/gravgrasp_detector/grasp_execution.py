@@ -188,6 +188,7 @@ class GraspExecutor:
         if not self._busy.acquire(blocking=False):
             return Outcome(ResultCode.BUSY, "another grasp is being executed; retry when it has finished")
         try:
+            self.refuse_if_estopped("execute a grasp")
             return self._execute(X_grasp, tsdf, pregrasp_distance_m)
         except Abort as abort:
             if abort.outcome.code in (ResultCode.GRIPPER_FAULT, ResultCode.ARM_FAULT, ResultCode.TIMEOUT,
@@ -248,10 +249,16 @@ class GraspExecutor:
         return grip_calibration.judge_grip(state.object_status, gripper.width_m(state), self.calibration,
                                            self.limits.min_object_width_m)
 
-    def _require_armed(self, action):
+    def refuse_if_estopped(self, action):
+        """Raises Abort(NOT_ARMED) while an emergency stop is active. Checked before any
+        other check too: until a person releases it, nothing else about a request
+        (its pose, the age of the view) is the answer an operator needs."""
         if self.estopped.is_set():
             raise Abort(ResultCode.NOT_ARMED, f"emergency stop is active: refusing to {action}; "
                                               "release it and arm again (service ~/arm)")
+
+    def _require_armed(self, action):
+        self.refuse_if_estopped(action)
         if not self.armed:
             raise Abort(ResultCode.NOT_ARMED, f"executor is not armed: refusing to {action}; "
                                               "call the ~/arm service (std_srvs/SetBool true) first")

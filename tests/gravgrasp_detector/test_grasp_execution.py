@@ -298,6 +298,12 @@ def test_emergency_stop_aborts_and_disarms(gripper_port):
     assert outcome.code == ge.ResultCode.NOT_ARMED and "emergency stop" in outcome.message
     assert len(arm.targets) == 1 and not ex.armed
     assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
+    # While the stop is active it is the answer, before the request's own faults.
+    far = ex.execute(grasp(x=5.0))
+    assert far.code == ge.ResultCode.NOT_ARMED and "emergency stop is active" in far.message
+    ex.arm_motion(True)  # released (arming clears the stop) ...
+    ex.arm_motion(False)  # ... then disarmed: the pose check answers first again
+    assert ex.execute(grasp(x=5.0)).code == ge.ResultCode.UNREACHABLE
 
 
 # -- the fault matrix (README): each fault gives a typed result within its timeout, and the
