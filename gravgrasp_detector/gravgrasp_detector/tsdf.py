@@ -23,7 +23,6 @@ Depth images follow REP-118: float32 metres, or uint16 millimetres via
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 # Name of the value convention above; stored in model files and checked on load.
 TSDF_CONVENTION = "vgn-0.5-surface-band-only-unobserved-0"
@@ -140,16 +139,21 @@ class TSDFVolume:
         self.origin = np.zeros(3)  # grid corner in the task frame
         self._intrinsics_cache = (None, None)
         self._dummy_color = None
+        # lazy: open3d costs ~2 s of CPU to import, and the nodes that only read volumes
+        # (detect, execute) import this module but never integrate.
+        import open3d
+
+        self._o3d = open3d
         self.reset()
 
     def reset(self):
         """Forget every integrated frame."""
         # A new volume: UniformTSDFVolume.reset() in Open3D 0.20 keeps the voxel values.
-        self._volume = o3d.pipelines.integration.UniformTSDFVolume(
+        self._volume = self._o3d.pipelines.integration.UniformTSDFVolume(
             length=self.size_m,
             resolution=self.resolution,
             sdf_trunc=self.truncation_m,
-            color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor,
+            color_type=self._o3d.pipelines.integration.TSDFVolumeColorType.NoColor,
             origin=self.origin.reshape(3, 1),
         )
         self.frames_integrated = 0
@@ -189,8 +193,8 @@ class TSDFVolume:
         # Open3D treats NaN as no return but +inf as a hit at infinity: zero them all.
         depth = np.where(valid, depth, np.float32(0.0)).astype(np.float32, copy=False)
 
-        rgbd = o3d.geometry.RGBDImage()
-        rgbd.depth = o3d.geometry.Image(depth)
+        rgbd = self._o3d.geometry.RGBDImage()
+        rgbd.depth = self._o3d.geometry.Image(depth)
         rgbd.color = self._color_placeholder(depth.shape)
         self._volume.integrate(
             rgbd, self._o3d_intrinsics(intrinsics), np.linalg.inv(T_task_camera)
@@ -214,7 +218,7 @@ class TSDFVolume:
     def _o3d_intrinsics(self, intrinsics):
         key, cached = self._intrinsics_cache
         if key != intrinsics:
-            cached = o3d.camera.PinholeCameraIntrinsic(
+            cached = self._o3d.camera.PinholeCameraIntrinsic(
                 intrinsics.width, intrinsics.height,
                 intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
             )
@@ -224,7 +228,7 @@ class TSDFVolume:
     def _color_placeholder(self, shape):
         # Open3D wants a colour image even for NoColor volumes; it is never read.
         if self._dummy_color is None or self._dummy_color_shape != shape:
-            self._dummy_color = o3d.geometry.Image(np.zeros(shape, np.uint8))
+            self._dummy_color = self._o3d.geometry.Image(np.zeros(shape, np.uint8))
             self._dummy_color_shape = shape
         return self._dummy_color
 
