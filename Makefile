@@ -30,6 +30,7 @@ help:
 	@echo "make data-objects-v1 / data-scenes-v1 - the v1 dataset of the shipped models"
 	@echo "make qualitative   - paper V-A scene through MODEL (models/gravgrasp.pt): TSDF/score/validness slice PNGs"
 	@echo "make model-cards   - qualitative PNGs + models/<stem>.md card for every model of 'make models'"
+	@echo "make calibration   - predicted vs simulated score per grasp mode on MODEL's held-out scenes (SCENES_DIR)"
 
 setup:
 	@ros_ws/setup.sh
@@ -157,6 +158,16 @@ MODEL ?= models/gravgrasp.pt
 qualitative: setup
 	@$(ROS) if [ ! -f "$(MODEL)" ]; then echo "make qualitative: $(MODEL) does not exist (no trained model yet; train one or pass MODEL=path.pt)" >&2; exit 2; fi; \
 	  ros2 run sim_bridge qualitative --model "$(MODEL)" --out "out/qualitative/$(basename $(notdir $(MODEL)))"
+
+# Predicted vs simulated gravity-rejection score on the scenes MODEL's training held out,
+# per grasp mode: out/calibration/<model stem>/calibration.png + .json; last line score_mae_n=.
+# SCENES_DIR=out/scenes_v2 (v2 data); CALIBRATION_SPLIT=all for scenes it never trained on.
+SCENES_DIR ?= out/scenes_v1
+CALIBRATION_SPLIT ?= val
+.PHONY: calibration
+calibration: setup
+	@$(ROS) ros2 run gravgrasp_detector score_calibration --model "$(MODEL)" --data "$(SCENES_DIR)" \
+	  --split $(CALIBRATION_SPLIT) --out "out/calibration/$(basename $(notdir $(MODEL)))"
 
 # A card per model of `make models` (models/gravgrasp*.md), each after its qualitative PNGs.
 # Keeps the hand-written "What a person saw" paragraphs.

@@ -28,6 +28,7 @@ setup(
             "stack = gravgrasp_detector.stack_node:main",
             "ur_arm = gravgrasp_detector.ur_arm_node:main",
             "calibrate_camera = gravgrasp_detector.calibrate_node:main",
+            "score_calibration = gravgrasp_detector.score_calibration:main",
         ],
     },
 )

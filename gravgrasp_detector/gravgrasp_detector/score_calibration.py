@@ -1,0 +1,141 @@
+"""Can the scores be trusted? Predicted against simulated gravity-rejection score at the
+labelled voxels of held-out scenes, per grasp mode (power / precision).
+
+`ros2 run gravgrasp_detector calibration --model M --data SCENES --out DIR`
+(`make calibration`) writes DIR/calibration.png (one panel per mode: predicted against
+simulated score, the y = x line) and DIR/calibration.json, and prints per mode the
+number of labels, the MAE [N] and Spearman's rank correlation; last line
+`score_mae_n=<all modes>`.
+
+Which scenes: by default those the model's own training split held out (the seed and
+validation fraction stored in the model file; the split is by file name, so the same
+scenes are held out whatever else is in the folder). `--split all` uses every scene, for
+scenes the model never trained on (another dataset, the held-out meshes).
+
+Every label of a scene file is a grasp that held in simulation, with its simulated
+score (paper Eq. 1 projected on gravity); the prediction is the network's score head at
+that voxel, the same number `detect` ranks by.
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+import numpy as np
+import torch
+from scipy.stats import spearmanr
+
+from . import model_file
+from .atomic_files import save_figure, save_json
+from .training_config import TrainConfig
+from .training_scenes import DataError, load_scene, split_scenes
+
+
+@torch.no_grad()
+def score_pairs(model, scene_files):
+    """-> {mode name: (predicted_n, simulated_n)} over the labels of `scene_files`;
+    scenes without label_mode count as mode 'all'."""
+    model.eval()
+    found: dict[str, tuple[list, list]] = {}
+    for path in scene_files:
+        scene = load_scene(path)
+        if not len(scene["score"]):
+            continue
+        if scene["tsdf"].shape != (model.resolution,) * 3:
+            raise DataError(f"scene {path} has a {scene['tsdf'].shape} grid but the model takes "
+                            f"{model.resolution}^3: use scenes made with the model's TSDF settings")
+        score_n = model(torch.from_numpy(np.ascontiguousarray(scene["tsdf"]))[None, None])["score_n"][0]
+        i, j, k = torch.from_numpy(scene["index"]).T
+        predicted = score_n[i, j, k].float().numpy()
+        modes = (np.zeros(len(predicted), int) if scene["mode"] is None else scene["mode"])
+        names = ["all"] if scene["mode"] is None else list(scene["mode_names"])
+        for m in np.unique(modes):
+            pred, sim = found.setdefault(names[m], ([], []))
+            pred.append(predicted[modes == m])
+            sim.append(scene["score"][modes == m])
+    return {name: (np.concatenate(p), np.concatenate(s)) for name, (p, s) in found.items()}
+
+
+def summarise(pairs):
+    """Per mode and over all: n, MAE [N], Spearman, mean predicted and simulated [N]."""
+    rows = dict(pairs)
+    if "all" not in rows:
+        rows["all"] = tuple(np.concatenate([v[i] for v in pairs.values()]) for i in (0, 1))
+    out = {}
+    for name, (pred, sim) in rows.items():
+        rho = float(spearmanr(pred, sim).statistic) if len(pred) > 2 and np.ptp(sim) > 0 and np.ptp(pred) > 0 \
+            else float("nan")
+        out[name] = {"n": int(len(pred)), "mae_n": float(np.abs(pred - sim).mean()), "spearman": rho,
+                     "mean_predicted_n": float(pred.mean()), "mean_simulated_n": float(sim.mean())}
+    return out
+
+
+def plot(pairs, summary, path, title):
+    # lazy: matplotlib takes seconds to import and only this figure needs it
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 4.2), squeeze=False)
+    top = max(max(p.max(), s.max()) for p, s in pairs.values()) * 1.05
+    for ax, (name, (pred, sim)) in zip(axes[0], sorted(pairs.items())):  # modes only, not "all"
+        ax.scatter(sim, pred, s=4, alpha=0.3)
+        ax.plot([0, top], [0, top], "k--", lw=1)
+        row = summary[name]
+        ax.set(xlim=(0, top), ylim=(0, top), xlabel="simulated score [N]", ylabel="predicted score [N]",
+               title=f"{name}: n={row['n']}, MAE {row['mae_n']:.1f} N, rho {row['spearman']:.2f}")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    save_figure(path, fig, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description="Predicted vs simulated gravity-rejection score, per grasp mode.")
+    p.add_argument("--model", default="models/gravgrasp.pt")
+    p.add_argument("--data", required=True, help="folder of scene files (searched recursively for *.npz)")
+    p.add_argument("--split", choices=("val", "all"), default="val",
+                   help="'val': the scenes the model's training split held out (default); 'all': every scene")
+    p.add_argument("--out", default="out/calibration")
+    args = p.parse_args(argv)
+    try:
+        model, metadata = model_file.load_model(args.model)
+    except model_file.ModelFileError as e:
+        print(f"calibration: {e}", file=sys.stderr)
+        return 2
+    files = sorted(str(f) for f in pathlib.Path(args.data).rglob("*.npz"))
+    if not files:
+        print(f"calibration: no scene files (*.npz) under {args.data}: pass --data the folder that "
+              "'datagen scenes' wrote", file=sys.stderr)
+        return 2
+    if args.split == "val":
+        config = (metadata.get("training_data") or {}).get("config") or {}
+        defaults = TrainConfig(data="", out="")
+        files = split_scenes(files, config.get("validation_fraction", defaults.validation_fraction),
+                             config.get("seed", defaults.seed))[1]
+    try:
+        pairs = score_pairs(model, files)
+    except DataError as e:
+        print(f"calibration: {e}", file=sys.stderr)
+        return 2
+    if not pairs:
+        print(f"calibration: the {len(files)} scenes hold no labels", file=sys.stderr)
+        return 1
+    summary = summarise(pairs)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    title = f"{pathlib.Path(args.model).name} on {len(files)} {args.split} scenes of {args.data}"
+    plot(pairs, summary, out / "calibration.png", title)
+    save_json(out / "calibration.json", {"model": str(args.model), "data": str(args.data), "split": args.split,
+                                         "scenes": len(files), "modes": summary})
+    for name, row in summary.items():
+        print(f"{name}: n={row['n']} mae_n={row['mae_n']:.2f} spearman={row['spearman']:.3f} "
+              f"mean_predicted_n={row['mean_predicted_n']:.1f} mean_simulated_n={row['mean_simulated_n']:.1f}")
+    print(f"score_mae_n={summary['all']['mae_n']:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,95 @@
+"""Score calibration (`ros2 run gravgrasp_detector calibration`): predicted against
+simulated score at the labelled voxels, per mode, on the held-out scenes."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from gravgrasp_detector import model_file, networks, score_calibration, training_scenes, tsdf
+
+from box_scenes import make_scene
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scenes")
+    rng = np.random.default_rng(11)
+    for n in range(6):
+        make_scene(root / f"scene_{n:03d}.npz", rng)
+    return root
+
+
+class Oracle(torch.nn.Module):
+    """Predicts f(simulated score) at each labelled voxel of one scene, 0 elsewhere."""
+
+    def __init__(self, scene, f):
+        super().__init__()
+        dense = torch.zeros(scene["tsdf"].shape)
+        i, j, k = torch.from_numpy(scene["index"]).T
+        dense[i, j, k] = torch.from_numpy(f(scene["score"]))
+        self.dense = dense
+        self.resolution = dense.shape[0]
+
+    def forward(self, x):
+        assert x.shape == (1, 1, *self.dense.shape)
+        return {"score_n": self.dense[None]}
+
+
+def test_pairs_are_taken_at_the_labelled_voxels_per_mode(scenes):
+    path = sorted(scenes.glob("*.npz"))[0]
+    scene = training_scenes.load_scene(path)
+    counts = {name: int((scene["mode"] == m).sum()) for m, name in enumerate(scene["mode_names"])}
+    exact = score_calibration.summarise(score_calibration.score_pairs(Oracle(scene, lambda s: s), [path]))
+    assert {name: row["n"] for name, row in exact.items() if name != "all"} == \
+        {name: n for name, n in counts.items() if n}
+    assert exact["all"]["n"] == len(scene["score"])
+    for row in exact.values():
+        assert row["mae_n"] == pytest.approx(0.0, abs=1e-5)
+    assert exact["all"]["spearman"] == pytest.approx(1.0)
+    high = score_calibration.summarise(score_calibration.score_pairs(Oracle(scene, lambda s: s + 5.0), [path]))
+    assert high["all"]["mae_n"] == pytest.approx(5.0, abs=1e-4) and high["all"]["spearman"] == pytest.approx(1.0)
+    assert high["all"]["mean_predicted_n"] == pytest.approx(high["all"]["mean_simulated_n"] + 5.0, abs=1e-3)
+    flipped = score_calibration.summarise(score_calibration.score_pairs(Oracle(scene, lambda s: 60.0 - s), [path]))
+    assert flipped["all"]["spearman"] == pytest.approx(-1.0)
+
+
+def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, capsys):
+    model_path = tmp_path / "model.pt"
+    torch.manual_seed(0)
+    model_file.save_model(model_path, networks.GraspNet(), tsdf.TSDFVolume(),
+                          training_data={"config": {"seed": 3, "validation_fraction": 0.3}})
+    files = sorted(str(p) for p in scenes.rglob("*.npz"))
+    held_out = training_scenes.split_scenes(files, 0.3, 3)[1]
+    assert 0 < len(held_out) < len(files)
+
+    out = tmp_path / "val"
+    assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    report = json.loads((out / "calibration.json").read_text())
+    assert report["scenes"] == len(held_out) and report["split"] == "val"
+    expected = {}
+    for f in held_out:
+        scene = training_scenes.load_scene(f)
+        for m, name in enumerate(scene["mode_names"]):
+            if (scene["mode"] == m).any():
+                expected[name] = expected.get(name, 0) + int((scene["mode"] == m).sum())
+    expected["all"] = sum(expected.values())
+    assert {name: row["n"] for name, row in report["modes"].items()} == expected
+    assert lines[-1] == f"score_mae_n={report['modes']['all']['mae_n']:.2f}"
+    assert (out / "calibration.png").stat().st_size > 5000
+
+    assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--split", "all",
+                                   "--out", str(tmp_path / "all")]) == 0
+    everything = json.loads((tmp_path / "all" / "calibration.json").read_text())
+    assert everything["scenes"] == len(files) and set(everything["modes"]) == {"power", "precision", "all"}
+
+
+def test_bad_inputs_are_one_line_each(scenes, tmp_path, capsys):
+    assert score_calibration.main(["--model", str(tmp_path / "none.pt"), "--data", str(scenes)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    model_path = tmp_path / "model.pt"
+    model_file.save_model(model_path, networks.GraspNet(), tsdf.TSDFVolume())
+    assert score_calibration.main(["--model", str(model_path), "--data", str(tmp_path / "empty")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no scene files" in err[0]
