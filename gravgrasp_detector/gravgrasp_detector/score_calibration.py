@@ -1,11 +1,12 @@
 """Can the scores be trusted? Predicted against simulated gravity-rejection score at the
 labelled voxels of held-out scenes, per grasp mode (power / precision).
 
-`ros2 run gravgrasp_detector calibration --model M --data SCENES --out DIR`
+`ros2 run gravgrasp_detector score_calibration --model M --data SCENES --out DIR`
 (`make calibration`) writes DIR/calibration.png (one panel per mode: predicted against
-simulated score, the y = x line) and DIR/calibration.json, and prints per mode the
-number of labels, the MAE [N] and Spearman's rank correlation; last line
-`score_mae_n=<all modes>`.
+simulated score, the y = x line; then the validness reliability diagram) and
+DIR/calibration.json, and prints per mode the number of labels, the MAE [N] and
+Spearman's rank correlation, then validness precision / recall at the deployed threshold
+and AUROC over the voxels `detect` considers; last line `score_mae_n=<all modes>`.
 
 Which scenes: by default those the model's own training split held out (the seed and
 validation fraction stored in the model file; the split is by file name, so the same
@@ -29,32 +30,64 @@ from scipy.stats import spearmanr
 from . import model_file
 from .atomic_files import save_figure, save_json
 from .training_config import TrainConfig
+from .detection import DetectionOptions, near_surface_mask
+from .training_losses import auroc
 from .training_scenes import DataError, load_scene, split_scenes
 
 
 @torch.no_grad()
-def score_pairs(model, scene_files):
-    """-> {mode name: (predicted_n, simulated_n)} over the labels of `scene_files`;
-    scenes without label_mode count as mode 'all'."""
+def network_at_labels(model, scene_files, surface_distance_voxels=DetectionOptions().surface_distance_voxels):
+    """One forward pass per scene -> (pairs, validness):
+    pairs: {mode name: (predicted_n, simulated_n)} at the labelled voxels (scenes
+    without label_mode count as mode 'all');
+    validness: (predicted probability, labelled) at every voxel `detect` considers (near
+    an observed surface, its `surface_distance_voxels`); a voxel is labelled valid when
+    a grasp that held sits there, every other candidate voxel counts as not valid, as in
+    training's validation metrics."""
     model.eval()
     found: dict[str, tuple[list, list]] = {}
+    probability, labelled = [], []
     for path in scene_files:
         scene = load_scene(path)
-        if not len(scene["score"]):
-            continue
         if scene["tsdf"].shape != (model.resolution,) * 3:
             raise DataError(f"scene {path} has a {scene['tsdf'].shape} grid but the model takes "
                             f"{model.resolution}^3: use scenes made with the model's TSDF settings")
-        score_n = model(torch.from_numpy(np.ascontiguousarray(scene["tsdf"]))[None, None])["score_n"][0]
+        grid = torch.from_numpy(np.ascontiguousarray(scene["tsdf"]))
+        out = model(grid[None, None])
         i, j, k = torch.from_numpy(scene["index"]).T
-        predicted = score_n[i, j, k].float().numpy()
+        valid = torch.zeros(grid.shape, dtype=torch.bool)
+        valid[i, j, k] = True
+        candidate = near_surface_mask(grid, surface_distance_voxels)
+        probability.append(torch.sigmoid(out["validness_logit"][0].float())[candidate].numpy())
+        labelled.append(valid[candidate].numpy())
+        if not len(scene["score"]):
+            continue
+        predicted = out["score_n"][0][i, j, k].float().numpy()
         modes = (np.zeros(len(predicted), int) if scene["mode"] is None else scene["mode"])
         names = ["all"] if scene["mode"] is None else list(scene["mode_names"])
         for m in np.unique(modes):
             pred, sim = found.setdefault(names[m], ([], []))
             pred.append(predicted[modes == m])
             sim.append(scene["score"][modes == m])
-    return {name: (np.concatenate(p), np.concatenate(s)) for name, (p, s) in found.items()}
+    pairs = {name: (np.concatenate(p), np.concatenate(s)) for name, (p, s) in found.items()}
+    validness = (np.concatenate(probability), np.concatenate(labelled)) if probability else (np.zeros(0), np.zeros(0, bool))
+    return pairs, validness
+
+
+def validness_summary(probability, labelled, threshold=DetectionOptions().validness_threshold, bins=10):
+    """Precision and recall at the deployed threshold, AUROC, and the reliability
+    diagram's bins (mean predicted probability, fraction labelled valid, voxels)."""
+    above = probability >= threshold
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.digitize(probability, edges) - 1, 0, bins - 1)
+    reliability = [{"from": float(edges[b]), "to": float(edges[b + 1]), "voxels": int((which == b).sum()),
+                    "mean_predicted": float(probability[which == b].mean()) if (which == b).any() else float("nan"),
+                    "fraction_valid": float(labelled[which == b].mean()) if (which == b).any() else float("nan")}
+                   for b in range(bins)]
+    return {"threshold": float(threshold), "voxels": int(len(probability)), "labelled_valid": int(labelled.sum()),
+            "precision": float((above & labelled).sum() / max(above.sum(), 1)),
+            "recall": float((above & labelled).sum() / max(labelled.sum(), 1)),
+            "auroc": auroc(probability, labelled), "reliability": reliability}
 
 
 def summarise(pairs):
@@ -71,14 +104,16 @@ def summarise(pairs):
     return out
 
 
-def plot(pairs, summary, path, title):
+def plot(pairs, summary, validness, path, title):
+    """One panel per mode (predicted against simulated score, y = x), then the
+    validness reliability diagram (fraction labelled valid per predicted-probability bin)."""
     # lazy: matplotlib takes seconds to import and only this figure needs it
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(pairs) + 1, figsize=(4.2 * (len(pairs) + 1), 4.2), squeeze=False)
     top = max(max(p.max(), s.max()) for p, s in pairs.values()) * 1.05
     for ax, (name, (pred, sim)) in zip(axes[0], sorted(pairs.items())):  # modes only, not "all"
         ax.scatter(sim, pred, s=4, alpha=0.3)
@@ -86,6 +121,16 @@ def plot(pairs, summary, path, title):
         row = summary[name]
         ax.set(xlim=(0, top), ylim=(0, top), xlabel="simulated score [N]", ylabel="predicted score [N]",
                title=f"{name}: n={row['n']}, MAE {row['mae_n']:.1f} N, rho {row['spearman']:.2f}")
+    ax = axes[0][-1]
+    bins = [b for b in validness["reliability"] if b["voxels"]]
+    ax.plot([0, 1], [0, 1], "k--", lw=1)
+    ax.plot([b["mean_predicted"] for b in bins], [b["fraction_valid"] for b in bins], "o-")
+    for b in bins:
+        ax.annotate(str(b["voxels"]), (b["mean_predicted"], b["fraction_valid"]), fontsize=6,
+                    textcoords="offset points", xytext=(3, 3))
+    ax.axvline(validness["threshold"], color="grey", lw=0.8)
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="predicted validness", ylabel="fraction labelled valid",
+           title=f"validness: P {validness['precision']:.3f} R {validness['recall']:.2f} AUROC {validness['auroc']:.3f}")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     save_figure(path, fig, dpi=110)
@@ -116,7 +161,7 @@ def main(argv=None):
         files = split_scenes(files, config.get("validation_fraction", defaults.validation_fraction),
                              config.get("seed", defaults.seed))[1]
     try:
-        pairs = score_pairs(model, files)
+        pairs, (probability, labelled) = network_at_labels(model, files)
     except DataError as e:
         print(f"calibration: {e}", file=sys.stderr)
         return 2
@@ -124,15 +169,19 @@ def main(argv=None):
         print(f"calibration: the {len(files)} scenes hold no labels", file=sys.stderr)
         return 1
     summary = summarise(pairs)
+    validness = validness_summary(probability, labelled)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     title = f"{pathlib.Path(args.model).name} on {len(files)} {args.split} scenes of {args.data}"
-    plot(pairs, summary, out / "calibration.png", title)
+    plot(pairs, summary, validness, out / "calibration.png", title)
     save_json(out / "calibration.json", {"model": str(args.model), "data": str(args.data), "split": args.split,
-                                         "scenes": len(files), "modes": summary})
+                                         "scenes": len(files), "modes": summary, "validness": validness})
     for name, row in summary.items():
         print(f"{name}: n={row['n']} mae_n={row['mae_n']:.2f} spearman={row['spearman']:.3f} "
               f"mean_predicted_n={row['mean_predicted_n']:.1f} mean_simulated_n={row['mean_simulated_n']:.1f}")
+    print(f"validness near surfaces: {validness['voxels']} voxels, {validness['labelled_valid']} labelled valid; "
+          f"at {validness['threshold']:g}: precision={validness['precision']:.4f} recall={validness['recall']:.3f} "
+          f"auroc={validness['auroc']:.4f}")
     print(f"score_mae_n={summary['all']['mae_n']:.2f}")
     return 0
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.stats import rankdata
 
 from . import rotation
 from .training_config import TrainConfig
@@ -65,12 +66,11 @@ def angular_error_deg(R, R_target):
 
 
 def auroc(scores, labels):
-    """Area under the ROC curve (rank statistic); nan without both classes."""
+    """Area under the ROC curve (rank statistic, tied scores share their mean rank, so a
+    constant score gives 0.5); nan without both classes."""
     scores, labels = np.asarray(scores, float), np.asarray(labels, bool)
     n_pos, n_neg = labels.sum(), (~labels).sum()
     if n_pos == 0 or n_neg == 0:
         return float("nan")
-    order = np.argsort(scores, kind="mergesort")
-    ranks = np.empty(len(scores))
-    ranks[order] = np.arange(1, len(scores) + 1)
+    ranks = rankdata(scores)
     return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))

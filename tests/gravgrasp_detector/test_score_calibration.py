@@ -21,7 +21,8 @@ def scenes(tmp_path_factory):
 
 
 class Oracle(torch.nn.Module):
-    """Predicts f(simulated score) at each labelled voxel of one scene, 0 elsewhere."""
+    """Predicts f(simulated score) at each labelled voxel of one scene, 0 elsewhere, and
+    validness logit +10 at the labelled voxels, -10 elsewhere."""
 
     def __init__(self, scene, f):
         super().__init__()
@@ -29,29 +30,53 @@ class Oracle(torch.nn.Module):
         i, j, k = torch.from_numpy(scene["index"]).T
         dense[i, j, k] = torch.from_numpy(f(scene["score"]))
         self.dense = dense
+        self.logit = torch.full(dense.shape, -10.0)
+        self.logit[i, j, k] = 10.0
         self.resolution = dense.shape[0]
 
     def forward(self, x):
         assert x.shape == (1, 1, *self.dense.shape)
-        return {"score_n": self.dense[None]}
+        return {"score_n": self.dense[None], "validness_logit": self.logit[None]}
+
+
+def pairs_of(model, path):
+    return score_calibration.summarise(score_calibration.network_at_labels(model, [path])[0])
 
 
 def test_pairs_are_taken_at_the_labelled_voxels_per_mode(scenes):
     path = sorted(scenes.glob("*.npz"))[0]
     scene = training_scenes.load_scene(path)
     counts = {name: int((scene["mode"] == m).sum()) for m, name in enumerate(scene["mode_names"])}
-    exact = score_calibration.summarise(score_calibration.score_pairs(Oracle(scene, lambda s: s), [path]))
+    exact = pairs_of(Oracle(scene, lambda s: s), path)
     assert {name: row["n"] for name, row in exact.items() if name != "all"} == \
         {name: n for name, n in counts.items() if n}
     assert exact["all"]["n"] == len(scene["score"])
     for row in exact.values():
         assert row["mae_n"] == pytest.approx(0.0, abs=1e-5)
     assert exact["all"]["spearman"] == pytest.approx(1.0)
-    high = score_calibration.summarise(score_calibration.score_pairs(Oracle(scene, lambda s: s + 5.0), [path]))
+    high = pairs_of(Oracle(scene, lambda s: s + 5.0), path)
     assert high["all"]["mae_n"] == pytest.approx(5.0, abs=1e-4) and high["all"]["spearman"] == pytest.approx(1.0)
     assert high["all"]["mean_predicted_n"] == pytest.approx(high["all"]["mean_simulated_n"] + 5.0, abs=1e-3)
-    flipped = score_calibration.summarise(score_calibration.score_pairs(Oracle(scene, lambda s: 60.0 - s), [path]))
+    flipped = pairs_of(Oracle(scene, lambda s: 60.0 - s), path)
     assert flipped["all"]["spearman"] == pytest.approx(-1.0)
+
+
+def test_validness_of_an_oracle_is_exact_and_a_constant_is_not(scenes):
+    path = sorted(scenes.glob("*.npz"))[0]
+    scene = training_scenes.load_scene(path)
+    oracle = Oracle(scene, lambda s: s)
+    _, (probability, labelled) = score_calibration.network_at_labels(oracle, [path])
+    assert labelled.sum() == len(scene["index"])  # every label lies near an observed surface
+    assert len(labelled) > 10 * labelled.sum()  # and many candidate voxels hold none
+    v = score_calibration.validness_summary(probability, labelled)
+    assert v["precision"] == 1.0 and v["recall"] == 1.0 and v["auroc"] == 1.0
+    top = v["reliability"][-1]
+    assert top["voxels"] == labelled.sum() and top["fraction_valid"] == 1.0
+    assert v["reliability"][0]["fraction_valid"] == 0.0
+    oracle.logit.fill_(0.0)  # 0.5 everywhere: everything passes the threshold, nothing ranks
+    _, (probability, labelled) = score_calibration.network_at_labels(oracle, [path])
+    v = score_calibration.validness_summary(probability, labelled)
+    assert v["recall"] == 1.0 and v["precision"] == pytest.approx(labelled.mean()) and v["auroc"] == 0.5
 
 
 def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, capsys):
@@ -77,6 +102,7 @@ def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, 
     expected["all"] = sum(expected.values())
     assert {name: row["n"] for name, row in report["modes"].items()} == expected
     assert lines[-1] == f"score_mae_n={report['modes']['all']['mae_n']:.2f}"
+    assert lines[-2].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
     assert (out / "calibration.png").stat().st_size > 5000
 
     assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--split", "all",

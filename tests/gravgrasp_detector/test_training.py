@@ -50,6 +50,9 @@ def test_rotation_loss_is_zero_for_the_180_degree_twin():
 def test_auroc_matches_hand_computed_values():
     assert training_losses.auroc([0.1, 0.4, 0.35, 0.8], [0, 0, 1, 1]) == pytest.approx(0.75)
     assert training_losses.auroc([1, 2, 3], [0, 1, 1]) == 1.0
+    assert training_losses.auroc([0.7] * 5, [0, 1, 0, 1, 1]) == 0.5  # ties: no ranking at all
+    # both positives beat the 0.2 negative and tie the 0.9 one: (2 + 2 x 0.5) / 4
+    assert training_losses.auroc([0.2, 0.9, 0.9, 0.9], [0, 0, 1, 1]) == pytest.approx(0.75)
 
 
 @pytest.mark.slow  # trains three times (minutes)
