@@ -2,22 +2,17 @@
 simulated score at the labelled voxels, per mode, on the held-out scenes."""
 import json
 
-import numpy as np
 import pytest
 import torch
 
 from gravgrasp_detector import model_file, networks, score_calibration, training_scenes, tsdf
 
-from box_scenes import make_scene
+from box_scenes import write_scenes
 
 
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory):
-    root = tmp_path_factory.mktemp("scenes")
-    rng = np.random.default_rng(11)
-    for n in range(6):
-        make_scene(root / f"scene_{n:03d}.npz", rng)
-    return root
+    return write_scenes(tmp_path_factory.mktemp("scenes"), 6, seed=11)
 
 
 class Oracle(torch.nn.Module):

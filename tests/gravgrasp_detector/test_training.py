@@ -12,16 +12,12 @@ import torch
 from gravgrasp_detector import model_file, rotation, training, training_loop, training_losses, training_scenes
 from gravgrasp_detector.training_config import TrainConfig
 
-from box_scenes import make_scene
+from box_scenes import write_scenes
 
 
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory):
-    root = tmp_path_factory.mktemp("scenes")
-    rng = np.random.default_rng(7)
-    for n in range(10):
-        make_scene(root / f"scene_{n:03d}.npz", rng)
-    return root
+    return write_scenes(tmp_path_factory.mktemp("scenes"), 10, seed=7)
 
 
 def test_quarter_turn_keeps_labels_on_the_same_geometry(scenes):

@@ -60,3 +60,11 @@ def make_scene(path, rng):
                         # the best-held grasps (centre) as power, the rest precision
                         label_mode=np.where(score > 35, 0, 1).astype(np.uint8),
                         mode_names=np.asarray(("power", "precision", "none")))
+
+
+def write_scenes(root, count, seed):
+    """`count` scene files scene_000.npz ... in `root` (a folder that exists); -> root."""
+    rng = np.random.default_rng(seed)
+    for n in range(count):
+        make_scene(root / f"scene_{n:03d}.npz", rng)
+    return root
