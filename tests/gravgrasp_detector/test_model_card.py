@@ -1,6 +1,6 @@
 """Model cards (gravgrasp_detector/model_card.py) from a tiny real training run.
 
-Six synthetic scenes (test_training.make_scene: a fused TSDF of a box with top-down
+Six synthetic scenes (tests/support/box_scenes.make_scene: a fused TSDF of a box with top-down
 labels) laid out as `datagen scenes` does (DATA/scenes/*.npz + manifest.json naming the
 grasp tables), three small grasp tables, two epochs of `training_loop.train`.
 """
@@ -12,7 +12,7 @@ import pytest
 
 from gravgrasp_detector import model_card, model_file, training_loop
 from gravgrasp_detector.training_config import TrainConfig
-from test_training import make_scene
+from box_scenes import make_scene
 
 pytestmark = pytest.mark.slow  # the fixture trains a model
 
