@@ -92,6 +92,9 @@ class ExecuteNode(Node):
         port = param("gripper_port", "/dev/ttyUSB0", "serial port of the Robotiq 2F-85 (Modbus RTU)")
         slave_id = param("gripper_slave_id", 9, "Modbus slave id of the gripper")
         baud = param("gripper_baud", 115200, "serial baud rate")
+        reply_timeout = param("gripper_reply_timeout_s", 0.1,
+                              "answer timeout per Modbus attempt [s]; raise it for slow USB adapters or a "
+                              "simulated gripper on a loaded machine")
         arm_service = param("arm_service", "move_to_pose", "MoveToPose service of the arm adapter or sim bridge")
         arm_stop_service = param("arm_stop_service", "stop_motion",
                                  "std_srvs/Trigger service that halts the arm at once (called on emergency stop)")
@@ -133,7 +136,7 @@ class ExecuteNode(Node):
         reach = ArmReachability(X_task_base, tcp_offset_m=tcp_offset) if self.check_ik else None
 
         def gripper():
-            return Robotiq2F85(port, slave_id=slave_id, baudrate=baud)
+            return Robotiq2F85(port, slave_id=slave_id, baudrate=baud, timeout_s=reply_timeout)
 
         self.arm = ServiceArm(self, arm_service, arm_stop_service, self.task_frame)
         self.executor_core = GraspExecutor(self.arm, gripper, limits,

@@ -45,7 +45,8 @@ def world(tmp_path_factory):
     # The sim runs at ~0.3-0.6x real time while holding an object: give motions time.
     # ... and the fingers too (the calibration's close timed out at 5 s under load).
     procs.append(RosProcess("gravgrasp_detector", "execute", params={"gripper_port": link, "arm_timeout_s": 120.0,
-                                                                     "gripper_timeout_s": 60.0},
+                                                                     "gripper_timeout_s": 60.0,
+                                                                     "gripper_reply_timeout_s": 0.5},
                             log_dir=tmp))
     procs[-1].wait_for_output("execute ready", timeout_s=60)
     rclpy.init()

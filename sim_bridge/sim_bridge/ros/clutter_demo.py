@@ -331,7 +331,8 @@ def run(args) -> dict:
                               "-p", f"detect:validness_threshold:={args.validness_threshold}",
                               # The sim runs slower than real time (0.3-0.6x while it holds an
                               # object, less on a busy machine): wall-clock limits sized for it.
-                              "-p", "execute:arm_timeout_s:=120.0", "-p", "execute:gripper_timeout_s:=60.0"])
+                              "-p", "execute:arm_timeout_s:=120.0", "-p", "execute:gripper_timeout_s:=60.0",
+                              "-p", "execute:gripper_reply_timeout_s:=0.5"])
         procs.wait_for("stack", "execute ready", 120)
         rclpy.init()
         client = Client()

@@ -185,7 +185,8 @@ def run(args) -> dict:
             execute = procs.start("execute", [installed("gravgrasp_detector", "execute"), "--ros-args",
                                               "-p", f"gripper_port:={link}", "-p", "armed_at_start:=true",
                                               "-p", "check_ik:=false",
-                                              "-p", "arm_timeout_s:=120.0", "-p", "gripper_timeout_s:=60.0"])
+                                              "-p", "arm_timeout_s:=120.0", "-p", "gripper_timeout_s:=60.0",
+                                              "-p", "gripper_reply_timeout_s:=0.5"])
             procs.wait_for("execute", "execute ready", 120)
             nodes.update(sim=sim, execute=execute)
         procs.wait_for("detect", "precision:", 120)
