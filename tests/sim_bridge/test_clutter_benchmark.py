@@ -14,6 +14,7 @@ from gravgrasp_detector import model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
 from sim_bridge.benchmark import clearing, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
+from sim_bridge.physics.objects import ObjectError
 
 pytestmark = pytest.mark.drake
 
@@ -116,6 +117,32 @@ def test_wilson_interval():
     assert all(math.isnan(v) for v in report.wilson_interval(0, 0))
 
 
+def test_two_proportion_test_matches_newcombe_and_the_chi_square_test():
+    # Newcombe (1998), Stat. Med. 17:873, Table II, method 10: (a) and (b).
+    c = report.two_proportion_test(56, 70, 48, 80)
+    assert c["diff"] == pytest.approx(0.2) and c["ci95"] == pytest.approx((0.0524, 0.3339), abs=1e-4)
+    assert report.two_proportion_test(9, 10, 3, 10)["ci95"] == pytest.approx((0.1705, 0.8090), abs=1e-4)
+    # The pooled z test is Pearson's chi-square on the 2x2 table (no continuity correction).
+    chi2 = (80 * (30 * 20 - 10 * 20) ** 2) / (40 * 40 * 50 * 30)
+    assert report.two_proportion_test(30, 40, 20, 40)["p_value"] == pytest.approx(math.erfc(math.sqrt(chi2 / 2)))
+    assert report.two_proportion_test(11, 24, 22, 37)["p_value"] > 0.05  # issue 16's 1.5 kg: no difference shown
+    same = report.two_proportion_test(0, 10, 0, 10)
+    assert same["p_value"] == 1.0 and same["diff"] == 0.0
+    assert math.isnan(report.two_proportion_test(3, 5, 0, 0)["p_value"])
+
+
+def test_every_method_is_compared_to_binary_at_the_weights_both_ran():
+    def row(method, kg, s, a):
+        return {"method": method, "mass_kg": kg, "successes": s, "attempts": a}
+    rows = [row("ours", 0.1, 9, 10), row("ours", 1.5, 8, 10), row("binary", 1.5, 3, 10), row("ours_quat", 0.5, 1, 2)]
+    comparisons = report.compare_to(rows)
+    assert [(c["method"], c["mass_kg"]) for c in comparisons] == [("ours", 1.5)]
+    assert comparisons[0]["diff"] == pytest.approx(0.5) and comparisons[0]["p_value"] < 0.05
+    md = "\n".join(report.comparison_lines(comparisons))
+    assert "| ours | 1.5 | +50.0 pts |" in md
+    assert "No comparison" in report.comparison_lines([])[0]
+
+
 def test_success_rates():
     assert clearing.success_rates(2, 4, 5) == (0.5, 0.4)
     assert all(math.isnan(v) for v in clearing.success_rates(0, 0, 0))
@@ -133,6 +160,25 @@ def test_oversized_objects_are_excluded_and_reported(tmp_path):
     assert [e["name"] for e in excluded] == ["big_cube"]
     assert excluded[0]["min_width_mm"] == pytest.approx(100.0, abs=0.5)
     assert sorted(s.name for s in usable) == ["can0", "can1", "can2", "can3", "can4", "flat_board"]
+
+
+def test_only_keeps_the_listed_meshes_and_an_unknown_name_is_one_error(tmp_path, capsys):
+    for i in range(7):
+        trimesh.creation.cylinder(radius=0.02 + 0.002 * i, height=0.1).export(tmp_path / f"can{i}.obj")
+    usable, _ = protocol.object_pool(str(tmp_path), only=("can1", "can2", "can3", "can4", "can6"))
+    assert sorted(s.name for s in usable) == ["can1", "can2", "can3", "can4", "can6"]
+    with pytest.raises(ObjectError, match="not in"):
+        protocol.object_pool(str(tmp_path), only=("can1", "mug"))
+    listed = tmp_path / "list.txt"
+    listed.write_text("# held out\ncan1\nmug\n")
+    save_test_model(tmp_path / "m.pt")
+    argv = ["--only", str(listed), "--model", f"x={tmp_path}/m.pt", "--methods", "", "--out", str(tmp_path / "o"),
+            "--workers", "0"]
+    assert cb.main(argv) == 2
+    assert "give the mesh directory" in capsys.readouterr().err
+    assert cb.main(argv + ["--meshes", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mug" in err
 
 
 def test_bad_mesh_dir_is_one_clear_error(tmp_path, capsys):
@@ -219,6 +265,7 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     counts = dict(zip(header.strip("| ").split(" | ")[2:], map(int, outcome_row.strip("| ").split(" | ")[2:])))
     assert sum(counts.values()) == ours["attempts"] and counts["success"] == row["successes"]
     assert (out / "sr_cr_vs_weight.png").stat().st_size > 1000
+    assert json.loads((out / "comparisons.json").read_text()) == [] and "No comparison with binary" in md
     scene = json.loads((out / "scenes" / "packed_000.json").read_text())
     assert [o["source"]["proc_seed"] for o in scene["objects"]] == [protocol.PROCEDURAL_SEED] * protocol.OBJECTS_PER_SCENE
 

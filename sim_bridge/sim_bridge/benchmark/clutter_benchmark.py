@@ -7,7 +7,8 @@ Protocol (one *round* = one method, one object weight, one scene):
   from a seed derived from the master seed (scenes/<id>.json), so every method and
   weight clears the same scenes. Every object of a round gets the round's weight.
 - Objects: procedural primitives with procedural seed 1000 by default (training uses
-  seed 0: disjoint), or `--meshes DIR` (URDF/OBJ). Objects wider than the 85 mm stroke
+  seed 0: disjoint), or `--meshes DIR` (URDF/OBJ; `--only FILE` keeps the meshes it
+  names, e.g. the held-out list models/vgn_heldout_meshes.txt). Objects wider than the 85 mm stroke
   in every direction (minimum width of the collision hull) are removed before the run
   and listed (excluded_objects.json, results.md), as the paper did.
 - Start: the scene settles at the round's weight (a heavier pile shifts; objects that
@@ -25,7 +26,8 @@ Protocol (one *round* = one method, one object weight, one scene):
 - A round ends when the table is clear, after 2 consecutive failures, when nothing is
   detected or no detected grasp passes the checks, or at 3 x objects attempts.
 - SR = successes / attempts, CR = successes / objects, pooled over rounds, with 95 %
-  Wilson intervals.
+  Wilson intervals; each method's SR against Binary's at the same weight with a
+  two-proportion z test (printed `p_<method>_vs_binary_<kg>=`, results.md).
 
 Methods are model files (`METHODS`); a missing one is skipped with a note. The rotation
 ablation's extra models run at `ABLATION_*WEIGHTS_KG` only. A model
@@ -46,9 +48,11 @@ import sys
 import time
 from concurrent.futures.process import BrokenProcessPool
 
+from ..datagen.object_sources import read_name_list
 from ..physics.objects import ObjectError
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, METHODS, QUICK_ABLATION_WEIGHTS_KG,
                        QUICK_WEIGHTS_KG, Protocol, weight_key)
+from .report import compare_to
 from .rounds import resolve_methods, run_benchmark
 
 # CLI
@@ -78,6 +82,9 @@ def main(argv=None) -> int:
     p.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                    help="a model file for a method (also a new method name)")
     p.add_argument("--meshes", default=None, help="URDF/OBJ directory instead of procedural objects")
+    p.add_argument("--only", default=None, metavar="FILE",
+                   help="with --meshes: use only the meshes named in FILE (one name per line, e.g. "
+                        "models/vgn_heldout_meshes.txt)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count; 0 = this process)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786")
@@ -101,6 +108,16 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2
+    only = None
+    if args.only:
+        if not args.meshes:
+            print("benchmark: --only selects among --meshes: give the mesh directory too", file=sys.stderr)
+            return 2
+        try:
+            only = read_name_list(args.only)
+        except ObjectError as e:
+            print(f"benchmark: --only: {e}", file=sys.stderr)
+            return 2
     overrides = {}
     for item in args.model:
         name, sep, path = item.partition("=")
@@ -125,7 +142,7 @@ def main(argv=None) -> int:
     try:
         rows = run_benchmark(out, methods, weights, n_scenes, args.seed, args.meshes, protocol,
                              args.workers, args.scheduler, progress=not args.no_progress,
-                             ablation_weights_kg=ablation)
+                             ablation_weights_kg=ablation, only_meshes=only)
     except (ObjectError, ValueError) as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2
@@ -138,6 +155,8 @@ def main(argv=None) -> int:
           + ("; some rounds failed: rerun to retry them" if incomplete else ""), flush=True)
     for r in rows:
         print(f"CR_{r['method']}_{weight_key(r['mass_kg'])}={r['CR']:.2f}")
+    for c in compare_to(rows):
+        print(f"p_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
     for r in rows:
         print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
     return 1 if incomplete else 0

@@ -71,14 +71,21 @@ def min_width_m(mesh) -> float:
 
 
 @functools.lru_cache(maxsize=4)
-def object_pool(meshes_dir: str | None, stroke_m: float | None = None):
-    """(usable ObjectSources, excluded [{name, min_width_mm, reason}]) (tuples). Raises ObjectError with
-    one clear message for a bad mesh directory."""
+def object_pool(meshes_dir: str | None, stroke_m: float | None = None, only: tuple | None = None):
+    """(usable ObjectSources, excluded [{name, min_width_mm, reason}]) (tuples). `only`: mesh
+    names to keep (e.g. the held-out list). Raises ObjectError with one clear message for a
+    bad mesh directory or a name that is not there."""
     stroke_m = STROKE_M if stroke_m is None else stroke_m
     if meshes_dir:
         sources = mesh_sources(meshes_dir, density_kg_m3=BARE_MESH_DENSITY_KG_M3)
         if not sources:
             raise ObjectError(f"--meshes {meshes_dir}: no .urdf or .obj files there")
+        if only is not None:
+            missing = sorted(set(only) - {s.name for s in sources})
+            if missing:
+                raise ObjectError(f"--only: {len(missing)} listed meshes are not in {meshes_dir} "
+                                  f"(e.g. {', '.join(missing[:3])}): check the list against that directory")
+            sources = [s for s in sources if s.name in set(only)]
     else:
         sources = procedural_sources(PROCEDURAL_POOL, PROCEDURAL_SEED)
     usable, excluded = [], []

@@ -1,5 +1,6 @@
-"""The benchmark's outputs: SR/CR with Wilson intervals per method and weight, results.md,
-the summaries and the SR/CR-vs-weight plot."""
+"""The benchmark's outputs: SR/CR with Wilson intervals per method and weight, each
+method's SR against Binary (two-proportion test), results.md, the summaries and the
+SR/CR-vs-weight plot."""
 
 from __future__ import annotations
 
@@ -29,6 +30,36 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple:
     return (0.0 if successes == 0 else max(0.0, centre - half), 1.0 if successes == n else min(1.0, centre + half))
 
 
+def two_proportion_test(s1: int, n1: int, s2: int, n2: int, z: float = 1.959964) -> dict:
+    """Is p1 = s1/n1 different from p2 = s2/n2? Pooled two-proportion z test, two-sided
+    p value; `ci95` is Newcombe's hybrid score interval of p1 - p2 (from the two Wilson
+    intervals; unlike the Wald interval it behaves at 0 % and 100 %). nan without attempts."""
+    if n1 <= 0 or n2 <= 0:
+        return {"diff": math.nan, "ci95": (math.nan, math.nan), "z": math.nan, "p_value": math.nan}
+    p1, p2 = s1 / n1, s2 / n2
+    pooled = (s1 + s2) / (n1 + n2)
+    se = math.sqrt(pooled * (1 - pooled) * (1 / n1 + 1 / n2))
+    z_stat = 0.0 if se == 0 else (p1 - p2) / se
+    (l1, u1), (l2, u2) = wilson_interval(s1, n1, z), wilson_interval(s2, n2, z)
+    d = p1 - p2
+    ci = (d - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2), d + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2))
+    return {"diff": d, "ci95": ci, "z": z_stat, "p_value": math.erfc(abs(z_stat) / math.sqrt(2))}
+
+
+def compare_to(rows: list, reference: str = "binary") -> list:
+    """SR of every other method against `reference` at each weight both ran:
+    [{method, reference, mass_kg, diff, ci95, z, p_value}]."""
+    ref = {r["mass_kg"]: r for r in rows if r["method"] == reference}
+    out = []
+    for r in rows:
+        b = ref.get(r["mass_kg"])
+        if r["method"] == reference or b is None:
+            continue
+        out.append({"method": r["method"], "reference": reference, "mass_kg": r["mass_kg"],
+                    **two_proportion_test(r["successes"], r["attempts"], b["successes"], b["attempts"])})
+    return out
+
+
 # outputs
 
 
@@ -50,7 +81,7 @@ def summarize(rounds: list, plan: dict) -> list:
     return rows
 
 
-def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
+def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=None) -> list:
     rounds = []
     for method, weights_kg in plan.items():
         for w in weights_kg:
@@ -75,10 +106,14 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
                    for r in rounds]})
     rows = summarize(rounds, plan)
     atomic_files.save_json(out / "results.json", rows)
+    comparisons = compare_to(rows)
+    atomic_files.save_json(out / "comparisons.json", comparisons)
+    objects = (f"procedural (seed {PROCEDURAL_SEED})" if not meshes_dir else f"meshes in {meshes_dir}"
+               + (f", only the {len(only)} listed in --only" if only is not None else ""))
     expected = len(ids)
     lines = ["# Clutter-removal benchmark against object weight", "",
              f"Scenes: {expected} ({', '.join(ARRANGEMENTS)} alternating), {OBJECTS_PER_SCENE} objects each, "
-             f"objects: {'meshes in ' + str(meshes_dir) if meshes_dir else f'procedural (seed {PROCEDURAL_SEED})'}; "
+             f"objects: {objects}; "
              f"hold {protocol.hold_s:.1f} s, shake +-{protocol.shake_m * 100:.0f} cm, grip {protocol.grip_force_n:.0f} N, "
              f"dt {protocol.time_step_s * 1e3:g} ms. SR = successes / attempts, CR = successes / objects, "
              "[95 % Wilson interval].", "",
@@ -90,6 +125,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
                      f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
                      f"{r['successes']} / {r['attempts']} / {r['objects']} | "
                      f"{r['left_before_start']} / {r['fell_off']} |")
+    lines += ["", *comparison_lines(comparisons)]
     lines += ["", *outcome_lines(rounds, plan)]
     ends = {}
     for r in rounds:
@@ -101,6 +137,21 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir) -> list:
     atomic_files.save_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
     plot(rows, plan, out / "sr_cr_vs_weight.png")
     return rows
+
+
+def comparison_lines(comparisons) -> list:
+    """Markdown table: SR difference to Binary with its interval and p value."""
+    if not comparisons:
+        return ["No comparison with binary (it did not run at these weights)."]
+    lines = ["SR against binary at the same weight (two-proportion z test, two-sided; the interval is "
+             "Newcombe's, 95 %):", "", "| method | weight [kg] | SR − SR binary | 95 % CI | p |",
+             "| --- | --- | --- | --- | --- |"]
+    for c in comparisons:
+        diff = "—" if math.isnan(c["diff"]) else f"{100 * c['diff']:+.1f} pts"
+        ci = "—" if math.isnan(c["ci95"][0]) else f"{100 * c['ci95'][0]:+.1f} to {100 * c['ci95'][1]:+.1f}"
+        p = "—" if math.isnan(c["p_value"]) else f"{c['p_value']:.3f}"
+        lines.append(f"| {c['method']} | {c['mass_kg']:g} | {diff} | {ci} | {p} |")
+    return lines
 
 
 def outcome_lines(rounds, plan) -> list:

@@ -107,9 +107,11 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
 
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
-                  ablation_weights_kg=None) -> list:
+                  ablation_weights_kg=None, only_meshes=None) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
-    `methods`: {name: model path}; ABLATION_METHODS run at `ablation_weights_kg` if given."""
+    `methods`: {name: model path}; ABLATION_METHODS run at `ablation_weights_kg` if given;
+    `only_meshes`: names of the meshes in `meshes_dir` to draw scenes from (None: all)."""
+    only = tuple(sorted(only_meshes)) if only_meshes is not None else None
     plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -117,6 +119,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     config = {"seed": seed, "meshes": str(pathlib.Path(meshes_dir).resolve()) if meshes_dir else None,
               "procedural_seed": None if meshes_dir else PROCEDURAL_SEED, "objects_per_scene": OBJECTS_PER_SCENE,
               "protocol": dataclasses.asdict(protocol)}
+    if only is not None:  # older runs' config.json has no such key: they stay resumable
+        config["only_meshes"] = list(only)
     config_path = out / "config.json"
     if config_path.exists():
         previous = json.loads(config_path.read_text())
@@ -125,7 +129,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
                              "use another --out, or delete it to start over")
     atomic_files.save_json(config_path, config)
 
-    usable, excluded = object_pool(meshes_dir)
+    usable, excluded = object_pool(meshes_dir, only=only)
     atomic_files.save_json(out / "excluded_objects.json", list(excluded))
     ids = scene_ids(n_scenes)
     scenes, pending = {}, []
@@ -179,7 +183,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
             note(f"benchmark: a worker process died ({e}); continuing with a new pool")
     for task, message in errors:
         note(f"benchmark: round {task.method} {task.mass_kg} kg {task.scene['scene_id']} failed: {message}")
-    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir)
+    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
 
 
 def _guarded_round(task):
