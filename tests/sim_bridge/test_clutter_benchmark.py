@@ -143,6 +143,16 @@ def test_every_method_is_compared_to_binary_at_the_weights_both_ran():
     assert "No comparison" in report.comparison_lines([])[0]
 
 
+def test_modes_of_lifted_objects_are_tabulated_with_how_many_then_held():
+    def attempt(mode, success):
+        return {"mode": mode, "success": success, "outcome": "success" if success else "dropped_in_shake"}
+    rounds = [{"method": "ours", "mass_kg": 1.5, "attempts": [attempt("power", True), attempt("power", False),
+                                                                attempt("precision", False), attempt("", False)]},
+              {"method": "ours", "mass_kg": 1.5, "attempts": [attempt("power", True)]}]
+    lines = report.mode_lines(rounds, {"ours": [0.1, 1.5]})
+    assert "| ours | 1.5 | 2 / 3 | 0 / 1 |" in lines and "| ours | 0.1 | 0 / 0 | 0 / 0 |" in lines
+
+
 def test_success_rates():
     assert clearing.success_rates(2, 4, 5) == (0.5, 0.4)
     assert all(math.isnan(v) for v in clearing.success_rates(0, 0, 0))
@@ -252,7 +262,8 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert ours["attempts"] >= 1 and ours["n_objects"] + len(ours["left_before_start"]) == protocol.OBJECTS_PER_SCENE
     for a in attempts["attempts"]:
         assert set(a) >= {"method", "mass_kg", "scene_id", "object", "pose", "score", "score_unit", "outcome",
-                          "success", "reason"}
+                          "success", "reason", "mode"}
+        assert a["mode"] in ("power", "precision") if a["success"] else a["mode"] in ("", "power", "precision")
         assert np.asarray(a["pose"]).shape == (4, 4) and a["score_unit"] == "N" and a["mass_kg"] == 0.3
     results = json.loads((out / "results.json").read_text())
     row = next(r for r in results if r["method"] == "ours")
@@ -260,10 +271,15 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     md = (out / "results.md").read_text()
     assert "| ours | 0.3 | 1/1 |" in md
     # Every attempt appears once in the outcome table.
-    header = next(line for line in md.splitlines() if line.startswith("| method | weight [kg] | success"))
-    outcome_row = [line for line in md.splitlines() if line.startswith("| ours | 0.3 |")][-1]
+    md_lines = md.splitlines()
+    at = next(i for i, line in enumerate(md_lines) if line.startswith("| method | weight [kg] | success"))
+    header = md_lines[at]
+    outcome_row = next(line for line in md_lines[at:] if line.startswith("| ours | 0.3 |"))
     counts = dict(zip(header.strip("| ").split(" | ")[2:], map(int, outcome_row.strip("| ").split(" | ")[2:])))
     assert sum(counts.values()) == ours["attempts"] and counts["success"] == row["successes"]
+    mode_row = next(line for line in md_lines[at:] if line.startswith("| ours | 0.3 |") and "/" in line)
+    held = [int(cell.split(" / ")[0]) for cell in mode_row.strip("| ").split(" | ")[2:]]
+    assert sum(held) == row["successes"]  # every success lifted something in one of the two modes
     assert (out / "sr_cr_vs_weight.png").stat().st_size > 1000
     assert json.loads((out / "comparisons.json").read_text()) == [] and "No comparison with binary" in md
     scene = json.loads((out / "scenes" / "packed_000.json").read_text())
@@ -309,7 +325,7 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     assert cell.feasible(g, view) == ""
     result = cell.execute(g, view)
     assert result["outcome"] == "success", result
-    assert len(result["lifted"]) == 1
+    assert len(result["lifted"]) == 1 and result["mode"] in ("power", "precision")
     assert cell.objects_on_table() == [] and cell.world.object_names() == []  # removed
     assert np.allclose(cell.world.tcp_pose()[:3, 3], cell.home[:3, 3], atol=1e-3)  # back home
     assert cell.world.finger_width_m() > 0.08  # open

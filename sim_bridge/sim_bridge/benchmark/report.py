@@ -98,7 +98,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
                              "attempt": i + 1, "object": a["lifted"], "pose": a["pose"],
                              "score": a["score"], "score_unit": "probability" if r["target"] == "binary" else "N",
                              "validness": a["validness"], "rank": a["rank"], "outcome": a["outcome"],
-                             "success": a["success"], "reason": a["reason"]})
+                             "success": a["success"], "reason": a["reason"], "mode": a.get("mode", "")})
     atomic_files.save_json(out / "attempts.json", {
         "schema_version": SCHEMA_VERSION, "attempts": attempts,
         "rounds": [{k: r[k] for k in ("method", "mass_kg", "scene_id", "objects", "n_objects", "end",
@@ -127,6 +127,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
                      f"{r['left_before_start']} / {r['fell_off']} |")
     lines += ["", *comparison_lines(comparisons)]
     lines += ["", *outcome_lines(rounds, plan)]
+    lines += ["", *mode_lines(rounds, plan)]
     ends = {}
     for r in rounds:
         ends[r["end"]] = ends.get(r["end"], 0) + 1
@@ -169,6 +170,26 @@ def outcome_lines(rounds, plan) -> list:
             row = counts.get((method, float(w)))
             if row:
                 lines.append(f"| {method} | {w:g} | " + " | ".join(str(row.get(o, 0)) for o in outcomes) + " |")
+    return lines
+
+
+def mode_lines(rounds, plan) -> list:
+    """Markdown table: the grasp mode of what was in the hand after the lift (from the
+    contacts) and how often each mode then came through the hold and shake."""
+    counts = {}
+    for r in rounds:
+        row = counts.setdefault((r["method"], float(r["mass_kg"])), {})
+        for a in r["attempts"]:
+            if a.get("mode"):
+                held, ok = row.get(a["mode"], (0, 0))
+                row[a["mode"]] = (held + 1, ok + bool(a["success"]))
+    lines = ["Grasp mode of what the hand lifted, and how many of those then held (successes / lifted):", "",
+             "| method | weight [kg] | power | precision |", "| --- | --- | --- | --- |"]
+    for method, weights_kg in plan.items():
+        for w in weights_kg:
+            row = counts.get((method, float(w)), {})
+            cells = [f"{row[m][1]} / {row[m][0]}" if m in row else "0 / 0" for m in ("power", "precision")]
+            lines.append(f"| {method} | {w:g} | " + " | ".join(cells) + " |")
     return lines
 
 

@@ -148,7 +148,9 @@ class SimCell:
 
     def execute(self, grasp, tsdf) -> dict:
         """Run the grasp, hold, shake, judge by ground truth, remove what was lifted,
-        open and go home. -> {pose, score, validness, outcome, reason, lifted}. Raises
+        open and go home. -> {pose, score, validness, outcome, reason, lifted, mode}; `mode`
+        is "power" or "precision" for an object in the hand after the executor's lift, else
+        "". Raises
         Refused for a grasp the executor would not start (`feasible`)."""
         why = self.feasible(grasp, tsdf)
         if why:
@@ -156,6 +158,8 @@ class SimCell:
         p = self.protocol
         self.executor.arm_motion(True)  # a fault disarms it; each attempt starts armed
         result = self.executor.execute(grasp.pose, tsdf=tsdf)
+        # How the hand holds what it lifted (contacts), before the hold and shake test it.
+        mode = next((s.grasp_mode for s in self.world.object_states() if s.in_hand), "")
         if result.success:
             outcome, reason = self._hold_and_shake()
         else:
@@ -176,7 +180,8 @@ class SimCell:
             self.world.move_tcp(self.home, self.limits.max_speed_mps, 30.0)
         return {"pose": np.asarray(grasp.pose).round(6).tolist(), "score": round(float(grasp.score_n), 4),
                 "validness": round(float(grasp.validness), 4),
-                "outcome": outcome, "reason": reason, "lifted": lifted if outcome == "success" else []}
+                "outcome": outcome, "reason": reason, "lifted": lifted if outcome == "success" else [],
+                "mode": mode}
 
     def _hold_and_shake(self) -> tuple:
         p = self.protocol
