@@ -35,6 +35,12 @@ def main(argv=None) -> int:
                    help="'precision-only' keeps grasps whose settled mode is precision (Ours-Precision)")
     p.add_argument("--nominal-mass-kg", type=float, default=defaults.nominal_mass_kg,
                    help="binary target: a grasp is positive iff its score >= this x 9.81 N")
+    p.add_argument("--negative-weight", type=float, default=defaults.negative_weight,
+                   help="validness loss weight of an explicit negative voxel (simulated failure or colliding pose)")
+    p.add_argument("--unlabelled-weight", type=float, default=defaults.unlabelled_weight,
+                   help="validness loss weight of a voxel with no label either way")
+    p.add_argument("--positive-weight", type=float, default=defaults.positive_weight,
+                   help="validness loss weight of a labelled voxel; 0: the summed negative weight / positives")
     p.add_argument("--validation-fraction", type=float, default=defaults.validation_fraction)
     p.add_argument("--seed", type=int, default=defaults.seed)
     p.add_argument("--threads", type=int, default=defaults.threads)

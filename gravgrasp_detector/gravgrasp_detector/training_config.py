@@ -25,3 +25,10 @@ class TrainConfig:
     loss_weight_score: float = 1.0
     loss_weight_validness: float = 1.0
     loss_weight_rotation: float = 1.0
+    # Validness cross-entropy, per voxel: explicit negatives (the scene's negative_index:
+    # simulated failures, colliding poses) weigh `negative_weight`, voxels with no label
+    # either way `unlabelled_weight`, positives `positive_weight`, or with 0 the balance:
+    # the summed negative weight over the positives (<= 1000). Defaults = v1's loss.
+    negative_weight: float = 1.0
+    unlabelled_weight: float = 1.0
+    positive_weight: float = 0.0

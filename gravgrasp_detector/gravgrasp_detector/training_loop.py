@@ -26,7 +26,7 @@ from .training_losses import angular_error_deg, auroc, losses
 def evaluate(model, scenes, config, device):
     """Validation metrics over whole scenes (no augmentation)."""
     model.eval()
-    logits, labels, abs_err, ang = [], [], [], []
+    logits, labels, listed, abs_err, ang = [], [], [], [], []
     loss_sum = {"total": 0.0, "score": 0.0, "validness": 0.0, "rotation": 0.0}
     for scene in scenes:
         ex = make_example(scene, config)
@@ -38,20 +38,31 @@ def evaluate(model, scenes, config, device):
         valid_dense[idx[:, 0], idx[:, 1], idx[:, 2]] = ex["valid"]
         logits.append(out["validness_logit"][0].flatten().cpu())
         labels.append(valid_dense.flatten() > 0.5)
+        listed_dense = torch.zeros_like(valid_dense, dtype=torch.bool)
+        listed_dense[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+        listed.append(listed_dense.flatten())
         pos = ex["valid"] > 0.5
         if pos.any():
             i, j, k = idx[pos].T
             abs_err.append((out["score_n"][0, i, j, k].cpu() - ex["score"][pos]).abs())
             ch = out["rotation"][0].permute(1, 2, 3, 0)[i, j, k].float().cpu()
             ang.append(angular_error_deg(rotation.reconstruct(model.rotation_representation, ch), ex["R"][pos]))
-    logits, labels = torch.cat(logits).numpy(), torch.cat(labels).numpy()
+    logits, labels, listed = torch.cat(logits).numpy(), torch.cat(labels).numpy(), torch.cat(listed).numpy()
     predicted = logits > 0.0
     tp = float((predicted & labels).sum())
+    negatives = listed & ~labels
     metrics = {f"loss_{k}": v for k, v in loss_sum.items()}
     metrics.update({
         "validness_precision": tp / max(predicted.sum(), 1),
         "validness_recall": tp / max(labels.sum(), 1),
         "validness_auroc": auroc(logits, labels),
+        # Among voxels whose answer is known (a label, or an explicit negative: a failure or
+        # a colliding pose), unlike the precision above, which counts every unlabelled voxel
+        # predicted valid as wrong.
+        "validness_precision_known": (tp / max(float((predicted & listed).sum()), 1.0)
+                                      if negatives.any() else float("nan")),
+        "validness_negatives_rejected": (float((~predicted[negatives]).mean())
+                                         if negatives.any() else float("nan")),
         "score_mae_n": float(torch.cat(abs_err).mean()) if abs_err else float("nan"),
         "rotation_error_deg": float(torch.cat(ang).mean()) if ang else float("nan"),
     })
@@ -91,7 +102,9 @@ def train(config: TrainConfig, progress=True, argv=None):
     checkpoint_path = out / "checkpoint.pt"
     if checkpoint_path.exists():
         ckpt = torch.load(checkpoint_path, map_location=device, weights_only=False)
-        if ckpt["config"] != dataclasses.asdict(config) | {"epochs": ckpt["config"]["epochs"]}:
+        # options added since a checkpoint was written count at their defaults
+        written = dataclasses.asdict(TrainConfig(data=config.data, out=config.out)) | ckpt["config"]
+        if written != dataclasses.asdict(config) | {"epochs": ckpt["config"]["epochs"]}:
             raise DataError(f"{checkpoint_path} was written with different options; use a new "
                             "--out directory or delete the checkpoint to start over")
         model.load_state_dict(ckpt["model"])
@@ -134,7 +147,9 @@ def train(config: TrainConfig, progress=True, argv=None):
         # relative to the working directory (the project), as model files store paths
         "data": os.path.relpath(os.path.abspath(config.data)), "scenes_train": len(train_scenes),
         "scenes_val": len(val_scenes),
-        "labels_train": int(len(all_scores)), "target": config.target, "subset": config.subset,
+        "labels_train": int(len(all_scores)),
+        "negatives_train": int(sum(len(s["negative_index"]) for s in train_scenes)),
+        "target": config.target, "subset": config.subset,
         "nominal_mass_kg": config.nominal_mass_kg, "epochs": config.epochs, "seed": config.seed,
         "validation": history[-1] if history else {},
         "command": "ros2 run gravgrasp_detector train " + " ".join(argv),

@@ -2,8 +2,12 @@
 
 Losses:
 - score: L2 on the gravity-rejection score [N] at valid voxels only;
-- validness: cross-entropy over all voxels, positives weighted by the negative/
-  positive ratio (labels are a few hundred voxels in 64k);
+- validness: cross-entropy over all voxels, weighted per voxel: explicit negatives
+  (simulated failures and colliding poses in the scene) by `negative_weight`, voxels
+  with no label either way by `unlabelled_weight`, positives by `positive_weight` or,
+  by default, the ratio of the summed negative weight to the positives (labels are a
+  few hundred voxels in 64k; v1 weighed every unlabelled voxel 1 and had no explicit
+  negatives);
 - rotation: at valid voxels, squared Frobenius distance between the rebuilt R (Eq. 2
   for ex-ez) and the label, taking the min over the 2F-85's 180 deg twin.
 Metrics: the rotation's angular error and the validness AUROC.
@@ -24,12 +28,8 @@ def losses(model, outputs, batch, config: TrainConfig):
     b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)])
     ijk = torch.cat([ex["index"] for ex in batch]).long()
     target_valid = torch.cat([ex["valid"] for ex in batch])
-    valid_dense = torch.zeros_like(outputs["validness_logit"])
-    valid_dense[b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2]] = target_valid
-    positives = valid_dense.sum().clamp_min(1.0)
-    pos_weight = ((valid_dense.numel() - positives) / positives).clamp(1.0, 1000.0)
-    loss_valid = F.binary_cross_entropy_with_logits(
-        outputs["validness_logit"], valid_dense, pos_weight=pos_weight)
+    loss_valid = validness_loss(outputs["validness_logit"], (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2]),
+                                target_valid, config)
 
     at = (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2])
     pos = target_valid > 0.5
@@ -47,6 +47,24 @@ def losses(model, outputs, batch, config: TrainConfig):
     total = (config.loss_weight_score * loss_score + config.loss_weight_validness * loss_valid
              + config.loss_weight_rotation * loss_rot)
     return {"total": total, "score": loss_score, "validness": loss_valid, "rotation": loss_rot}
+
+
+def validness_loss(logits, at, target_valid, config: TrainConfig):
+    """Weighted cross-entropy over all voxels (module docstring). `at`: the (batch, i, j,
+    k) indices of the listed voxels, positives (target 1) and negatives (target 0)."""
+    valid_dense = torch.zeros_like(logits)
+    valid_dense[at] = target_valid
+    weight = torch.full_like(logits, config.unlabelled_weight)
+    weight[at] = config.negative_weight
+    positive = valid_dense > 0.5
+    n_positive = positive.sum().clamp_min(1)
+    if config.positive_weight > 0:
+        pos_weight = torch.tensor(config.positive_weight)
+    else:
+        pos_weight = (weight[~positive].sum() / n_positive).clamp(1.0, 1000.0)
+    weight = torch.where(positive, pos_weight.to(weight.dtype), weight)
+    # the mean over voxels, as v1's pos_weight form: same loss at the default weights
+    return F.binary_cross_entropy_with_logits(logits, valid_dense, weight=weight, reduction="mean")
 
 
 def rotation_loss(representation, channels, R_target):

@@ -26,7 +26,7 @@ class DataError(RuntimeError):
 
 def load_scene(path):
     """A scene file -> dict(tsdf (R,R,R) float32, index (K,3) int64, score (K,),
-    e_x (K,3), e_z (K,3), mode (K,) or None)."""
+    e_x (K,3), e_z (K,3), mode (K,) or None, negative_index (M,3) int64)."""
     try:
         with np.load(path) as z:
             scene = {
@@ -37,6 +37,9 @@ def load_scene(path):
                 "e_z": z["label_e_z"].astype(np.float32).reshape(-1, 3),
                 "mode": z["label_mode"].astype(np.int64).reshape(-1) if "label_mode" in z else None,
                 "mode_names": [str(n) for n in z["mode_names"]] if "mode_names" in z else DEFAULT_MODE_NAMES,
+                # explicit validness negatives (scenes from before them have none)
+                "negative_index": (z["negative_index"].astype(np.int64).reshape(-1, 3) if "negative_index" in z
+                                   else np.zeros((0, 3), np.int64)),
             }
     except (OSError, KeyError, ValueError) as err:
         raise DataError(f"scene file {path} is unreadable or lacks tsdf/label_* arrays ({err}); "
@@ -104,8 +107,18 @@ def shift(grid, index, offset):
 
 
 def make_example(scene, config, rng=None):
-    """One training example as dense tensors; augmented when rng is given."""
+    """One training example as dense tensors; augmented when rng is given. The explicit
+    negatives ride along as extra rows with valid 0 (and no score or rotation), so the
+    augmentation moves them with the labels (the scene stage keeps them off labelled
+    voxels)."""
     index, score, valid, e_x, e_z = select_labels(scene, config)
+    negatives = scene.get("negative_index", np.zeros((0, 3), np.int64))
+    if len(negatives):
+        zeros = np.zeros((len(negatives), 3), np.float32)
+        index = np.concatenate([index, negatives])
+        score = np.concatenate([score, np.zeros(len(negatives), np.float32)])
+        valid = np.concatenate([valid, np.zeros(len(negatives), np.float32)])
+        e_x, e_z = np.concatenate([e_x, zeros]), np.concatenate([e_z, zeros])
     grid = scene["tsdf"]
     keep = np.ones(len(score), bool)
     if rng is not None:

@@ -43,6 +43,54 @@ def test_rotation_loss_is_zero_for_the_180_degree_twin():
     assert training_losses.rotation_loss("ex-ez", rotation.encode("ex-ez", other), R) > 0.1
 
 
+def test_validness_loss_weights_negatives_unlabelled_and_positives_as_configured():
+    torch.manual_seed(0)
+    logits = torch.randn(2, 6, 6, 6)
+    at = (torch.tensor([0, 0, 1, 1]), torch.tensor([1, 2, 3, 4]), torch.tensor([1, 2, 3, 4]), torch.tensor([0, 1, 2, 3]))
+    target = torch.tensor([1.0, 1.0, 0.0, 1.0])  # three positives, one explicit negative
+    cfg = TrainConfig(data="", out="")
+    # The defaults are v1's loss: every non-positive voxel weighs 1, positives the ratio.
+    dense = torch.zeros_like(logits)
+    dense[at] = target
+    v1 = torch.nn.functional.binary_cross_entropy_with_logits(
+        logits, dense, pos_weight=torch.tensor((logits.numel() - 3) / 3))
+    assert training_losses.validness_loss(logits, at, target, cfg) == pytest.approx(float(v1), rel=1e-5)
+    # Unlabelled voxels at weight 0 no longer count; the explicit negative still does.
+    cfg = TrainConfig(data="", out="", unlabelled_weight=0.0, negative_weight=2.0)
+    base = training_losses.validness_loss(logits, at, target, cfg)
+    moved = logits.clone()
+    moved[0, 5, 5, 5] += 10.0  # an unlabelled voxel
+    assert training_losses.validness_loss(moved, at, target, cfg) == pytest.approx(float(base))
+    moved[1, 3, 3, 2] += 10.0  # the negative, now confidently valid: worse
+    assert training_losses.validness_loss(moved, at, target, cfg) > base + 1e-3
+    # Balanced positives: the summed negative weight (one negative x 2) over 3 positives,
+    # never below 1 (positives are not weighed down).
+    expected = -(1.0 * torch.nn.functional.logsigmoid(logits[at][target > 0.5]).sum()
+                 + 2 * torch.nn.functional.logsigmoid(-logits[at][target < 0.5]).sum()) / logits.numel()
+    assert float(base) == pytest.approx(float(expected), rel=1e-5)
+
+
+def test_explicit_negatives_move_with_the_volume_in_augmentation(scenes):
+    scene = training_scenes.load_scene(sorted(scenes.glob("*.npz"))[0])
+    r = scene["tsdf"].shape[0]
+    scene["tsdf"] = (np.arange(r ** 3, dtype=np.float32).reshape((r,) * 3) + 1) / r ** 3  # every voxel its own value
+    scene["negative_index"] = np.array([[10, 12, 3], [20, 21, 5], [30, 9, 8]])
+    cfg = TrainConfig(data="", out="")
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        ex = training_scenes.make_example(scene, cfg, rng)
+        grid, idx, valid = ex["tsdf"][0].numpy(), ex["index"].numpy(), ex["valid"].numpy()
+        values = grid[tuple(idx.T)]
+        originals = np.rint(values * r ** 3 - 1).astype(np.int64)
+        original_ijk = np.stack(np.unravel_index(originals, (r,) * 3), 1)
+        negatives = valid == 0
+        assert 1 <= negatives.sum() <= 3
+        # each negative row sits on the voxel that came from a listed negative
+        listed = {tuple(v) for v in scene["negative_index"]}
+        assert all(tuple(v) in listed for v in original_ijk[negatives])
+        assert not ex["score"][negatives].any() and ex["valid"][~negatives].all()
+
+
 def test_auroc_matches_hand_computed_values():
     assert training_losses.auroc([0.1, 0.4, 0.35, 0.8], [0, 0, 1, 1]) == pytest.approx(0.75)
     assert training_losses.auroc([1, 2, 3], [0, 1, 1]) == 1.0
@@ -78,7 +126,7 @@ def test_training_learns_and_resumes_deterministically(scenes, tmp_path):
 @pytest.mark.slow
 def test_variants_train_and_record_their_target(scenes, tmp_path):
     for extra in ({"rotation": "quat"}, {"target": "binary", "nominal_mass_kg": 3.5},
-                  {"subset": "precision-only"}):
+                  {"subset": "precision-only"}, {"unlabelled_weight": 0.05, "negative_weight": 2.0}):
         out = tmp_path / "-".join(map(str, extra.values()))
         training_loop.train(TrainConfig(data=str(scenes), out=str(out), epochs=1, batch_size=5, threads=1, **extra),
                        progress=False)
@@ -86,6 +134,10 @@ def test_variants_train_and_record_their_target(scenes, tmp_path):
         for key, value in extra.items():
             if key in ("target", "subset", "nominal_mass_kg"):
                 assert meta["training_data"][key] == value
+            elif key.endswith("_weight"):
+                assert meta["training_data"]["config"][key] == value
+                assert meta["training_data"]["negatives_train"] > 0
+                assert 0 <= meta["training_data"]["validation"]["val_validness_negatives_rejected"] <= 1
             else:
                 assert meta["network"]["rotation_representation"] == value
 

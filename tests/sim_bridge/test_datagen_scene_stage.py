@@ -11,7 +11,7 @@ import trimesh
 from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
 from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
 from sim_bridge.datagen.object_sources import object_from_table
-from sim_bridge.datagen.scene_dataset import run_scene_stage
+from sim_bridge.datagen.scene_dataset import NEGATIVE_COLLIDES, NEGATIVE_FAILED, negative_voxels, run_scene_stage
 from sim_bridge.datagen.voxel_labels import RESOLUTION
 from sim_bridge.physics import hand_collision
 from sim_bridge.physics.gravity_projection import gravity_rejection_score
@@ -116,6 +116,43 @@ def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
             obst = np.concatenate(others)
             assert not hand_collision.collides(X, obst, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)[0]
     assert total > 30 and 0 < copies < total and 0 < mirrored < copies
+
+
+def test_explicit_negatives_are_failures_and_colliding_poses_off_the_labels(grasp_data, scenes):
+    voxel = VOLUME_SIZE_M / RESOLUTION
+    reasons = []
+    for p in sorted((scenes / "scenes").glob("*.npz")):
+        z = dict(np.load(p))
+        neg, lab = z["negative_index"], z["label_index"]
+        assert neg.dtype == np.uint8 and neg.shape[1] == 3 and len(z["negative_reason"]) == len(neg)
+        assert len(np.unique(neg, axis=0)) == len(neg)  # one entry per voxel
+        flat = lambda ijk: set(np.ravel_multi_index(ijk.astype(np.int64).T, (RESOLUTION,) * 3))  # noqa: E731
+        assert not flat(neg) & flat(lab)
+        reasons += list(z["negative_reason"])
+        # every simulated failure's voxel (the commanded pose, as tried) is a negative or a label
+        known = flat(neg) | flat(lab)
+        for k, name in enumerate(z["object_names"]):
+            t = load_table(grasp_data / "objects" / "objects" / f"{name}.npz")
+            X = z["X_task_object"][k].astype(np.float64) @ t["X_object_tcp_candidate"][~t["grasped"]].astype(np.float64)
+            ijk = np.floor(X[:, :3, 3] / voxel).astype(np.int64)
+            inside = ((ijk >= 0) & (ijk < RESOLUTION)).all(1)
+            assert flat(ijk[inside]) <= known
+    assert set(reasons) == {NEGATIVE_FAILED, NEGATIVE_COLLIDES}
+
+
+def test_negative_voxels_take_the_first_reason_and_skip_labels():
+    def at(*points):
+        X = np.repeat(np.eye(4)[None], len(points), 0)
+        X[:, :3, 3] = points
+        return X
+    v = VOLUME_SIZE_M / RESOLUTION
+    c = lambda i, j, k: ((i + 0.5) * v, (j + 0.5) * v, (k + 0.5) * v)  # noqa: E731
+    out = negative_voxels(np.array([[1, 1, 1]]), at(c(1, 1, 1), c(2, 2, 2), c(5, 5, 5)),
+                          at(c(2, 2, 2), c(3, 3, 3), (-0.01, 0.1, 0.1)))
+    assert out["index"].tolist() == [[2, 2, 2], [3, 3, 3], [5, 5, 5]]
+    assert out["reason"].tolist() == [NEGATIVE_FAILED, NEGATIVE_COLLIDES, NEGATIVE_FAILED]
+    empty = negative_voxels(np.zeros((0, 3)), np.zeros((0, 4, 4)), np.zeros((0, 4, 4)))
+    assert empty["index"].shape == (0, 3) and empty["reason"].shape == (0,)
 
 
 def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(grasp_data, scenes, tmp_path):

@@ -1,7 +1,7 @@
 """Small training scenes from a real TSDF fusion (tsdf.TSDFVolume) of an analytic box
 ray-cast with numpy, labelled with top-down grasps over the box (the best-held, at the
-centre, as power grasps): small enough that a few epochs take seconds, structured enough
-that learning is measurable. Used by the training and score-calibration tests."""
+centre, as power grasps) and explicit negatives on the table beside it: small enough
+that a few epochs take seconds, structured enough that learning is measurable. Used by the training and score-calibration tests."""
 import numpy as np
 
 from gravgrasp_detector import tsdf
@@ -55,10 +55,15 @@ def make_scene(path, rng):
     e_z = np.tile([0, 0, -1.0], (len(p), 1))
     e_x = np.tile([1.0, 0, 0] if size[1] < size[0] else [0, 1.0, 0], (len(p), 1))
     score = 40.0 - 200.0 * np.linalg.norm(p[:, :2] - centre, axis=1)  # best at the centre
+    # Explicit negatives: top-down poses on the table 2 cm beside the box (the open
+    # fingers would hit the table), as the scene stage lists colliding poses.
+    beside = np.array([(box_max[0] + 0.02, y, 0.06) for y in ys] + [(box_min[0] - 0.02, y, 0.06) for y in ys])
+    negative_index = np.unique(np.floor(beside / vs).astype(np.int64), axis=0)
     np.savez_compressed(path, tsdf=volume.grid(), label_index=index, label_score=score.astype(np.float32),
                         label_e_x=e_x.astype(np.float32), label_e_z=e_z.astype(np.float32),
                         # the best-held grasps (centre) as power, the rest precision
                         label_mode=np.where(score > 35, 0, 1).astype(np.uint8),
+                        negative_index=negative_index.astype(np.uint8),
                         mode_names=np.asarray(("power", "precision", "none")))
 
 

@@ -30,7 +30,10 @@ label_symmetry (K,) uint8 (provenance: row of that object's grasp table and the
 symmetry it was moved by, 0 = the simulated pose), the object names and poses,
 the arrangement, the camera poses and intrinsics, and the counts of projected
 and collision-free grasps, and how many labels the simulated grasps alone give
-(n_labels_without_copies).
+(n_labels_without_copies). The explicit negatives for validness: negative_index
+(M,3) uint8, voxels without a label that hold a simulated failure (tried at the
+commanded pose, symmetries too; negative_reason 1) or a held grasp whose open hand
+or approach collides in this scene (reason 2).
 """
 
 import hashlib
@@ -126,27 +129,39 @@ def _run_scene(task):
     meshes = [s.collision_mesh() for s in specs]
     points = [hand_collision.surface_points(m, seed=0) @ X[:3, :3].T + X[:3, 3] for m, X in zip(meshes, poses)]
     X_all, f_all, mode_all, obj_all, row_all, sym_all = [], [], [], [], [], []
+    failed_all, collides_all = [], []  # poses known not to work here: the explicit negatives
     n_projected = 0
     for k, (t, X_obj) in enumerate(zip(tables, poses)):
-        rows = np.flatnonzero(t["grasped"])
         key = "X_object_tcp_candidate" if task.label_pose == "commanded" else "X_object_tcp"
-        X = t[key][rows].astype(np.float64)
-        sym = np.zeros(len(rows), np.int64)
+        S = None
         if task.symmetry:
             S = object_symmetry.cached_symmetry_transforms(
                 pathlib.Path(task.objects_dir).parent / "symmetry", str(t["name"]),
                 str(t["shape_sha256"]) if "shape_sha256" in t else shape_sha256(specs[k]), meshes[k], specs[k].com_m)
             if not task.mirrors:
                 S = S[~object_symmetry.is_mirror(S)]  # the rotations, first in S: their indices stay
+            mirrored = object_symmetry.is_mirror(S)
+        # Simulated failures (a simulation error says nothing about the grasp) at the
+        # commanded pose, the one that was tried, copied to the symmetries as successes are.
+        reason = t["reason"].astype(str) if "reason" in t else np.full(len(t["grasped"]), "")
+        failed = np.flatnonzero(~t["grasped"].astype(bool) & ~np.char.startswith(reason, "simulation error"))
+        X_failed = t["X_object_tcp_candidate"][failed].astype(np.float64)
+        if S is not None:
+            X_failed = object_symmetry.replicate(X_failed, S)[0]
+        failed_all.append(X_obj[None] @ X_failed)
+        rows = np.flatnonzero(t["grasped"])
+        X = t[key][rows].astype(np.float64)
+        sym = np.zeros(len(rows), np.int64)
+        if S is not None:
             X, src = object_symmetry.replicate(X, S)
             rows, sym = rows[src], np.repeat(np.arange(len(S)), len(src) // len(S))
-            mirrored = object_symmetry.is_mirror(S)
         X = X_obj[None] @ X
         n_projected += len(rows)
         # the settled hand touches its object by definition; a commanded pose must clear it
         obstacles = [p for j, p in enumerate(points) if j != k or task.label_pose == "commanded"]
         others = np.concatenate(obstacles) if obstacles else None
         free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
+        collides_all.append(X[~free])
         X, rows, sym = X[free], rows[free], sym[free]
         X_all.append(X)
         scores = t["scores_n"][rows]
@@ -164,6 +179,8 @@ def _run_scene(task):
     g = labels["grasp"]
     simulated = cat(sym_all, (0,), np.int64) == 0
     n_without_copies = len(voxel_labels(X_all[simulated], f_all[simulated])["score"])
+    negatives = negative_voxels(labels["index"], cat(failed_all, (0, 4, 4), np.float64),
+                                cat(collides_all, (0, 4, 4), np.float64))
     return dict(
         tsdf=tsdf.grid(),
         label_index=labels["index"], label_score=labels["score"],
@@ -177,12 +194,38 @@ def _run_scene(task):
         intrinsics=np.asarray([IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX, intrinsics.cx, intrinsics.cy]),
         n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
         n_labels_without_copies=np.asarray(n_without_copies),
+        negative_index=negatives["index"], negative_reason=negatives["reason"],
         table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
         gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
         label_pose=np.asarray(task.label_pose), symmetry=np.asarray(task.symmetry),
         mirrors=np.asarray(task.symmetry and task.mirrors),
         mode_names=np.asarray(MODE_NAMES), seed=np.asarray(task_seed(task.master_seed, "scene", task.index), np.uint64),
     )
+
+
+NEGATIVE_FAILED, NEGATIVE_COLLIDES = 1, 2  # negative_reason codes
+
+
+def negative_voxels(label_index, X_failed, X_collides):
+    """Voxels holding a grasp pose known not to work in this scene, and no label: the TCP
+    voxels of simulated failures (NEGATIVE_FAILED) and of held grasps whose open hand or
+    approach collides here (NEGATIVE_COLLIDES; a voxel with both gets the first).
+    -> {index (M,3) uint8 sorted, reason (M,) uint8}."""
+    codes = np.concatenate([np.full(len(X_failed), NEGATIVE_FAILED), np.full(len(X_collides), NEGATIVE_COLLIDES)])
+    X = np.concatenate([np.asarray(X_failed).reshape(-1, 4, 4), np.asarray(X_collides).reshape(-1, 4, 4)])
+    ijk = np.floor(X[:, :3, 3] / (VOLUME_SIZE_M / RESOLUTION)).astype(np.int64)
+    inside = ((ijk >= 0) & (ijk < RESOLUTION)).all(axis=1)
+    flat = np.ravel_multi_index(ijk[inside].T, (RESOLUTION,) * 3) if inside.any() else np.zeros(0, np.int64)
+    codes = codes[inside]
+    labelled = np.ravel_multi_index(np.asarray(label_index, np.int64).reshape(-1, 3).T, (RESOLUTION,) * 3)
+    keep = ~np.isin(flat, labelled)
+    flat, codes = flat[keep], codes[keep]
+    order = np.lexsort((codes, flat))  # per voxel, the smallest code first
+    flat, codes = flat[order], codes[order]
+    first = np.ones(len(flat), bool)
+    first[1:] = flat[1:] != flat[:-1]
+    index = np.stack(np.unravel_index(flat[first], (RESOLUTION,) * 3), 1) if first.any() else np.zeros((0, 3))
+    return {"index": index.astype(np.uint8).reshape(-1, 3), "reason": codes[first].astype(np.uint8)}
 
 
 def _resting_poses(table):
