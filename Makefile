@@ -144,17 +144,22 @@ data-scenes-v1: setup
 	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v1 --meshes ../shared/meshes/vgn_train \
 	  --scenes 1200 --seed 0 --out out/scenes_v1 --label-pose settled --no-symmetry --workers $(WORKERS)
 
-# The shipped model and the benchmark's comparison models, all trained on out/scenes_v1
-# (make data-scenes). Each run resumes from out/training/<variant>/checkpoint.pt.
+# The shipped model and the benchmark's comparison models, all trained on TRAIN_DATA
+# (v1: out/scenes_v1, make data-scenes-v1; v2: TRAIN_DATA=out/scenes_v2 with e.g.
+# TRAIN_ARGS=--negative-weight=250). Each run resumes from out/training/<variant>/checkpoint.pt.
+# bf16 autocast only where the CPU has AMX (elsewhere it is emulated, slower than fp32).
 EPOCHS ?= 20
+TRAIN_DATA ?= out/scenes_v1
+TRAIN_ARGS ?=
+BF16 := $(shell grep -qw amx_bf16 /proc/cpuinfo 2>/dev/null && echo --bf16)
 MODEL_VARIANTS := ours: precision_only:--data-subset=precision-only binary:--target=binary \
   ey_ez:--rotation=ey-ez quat:--rotation=quat
 .PHONY: models
 models: setup
 	@$(ROS) set -e; for spec in $(MODEL_VARIANTS); do \
 	  v=$${spec%%:*}; dest=models/gravgrasp$$([ $$v = ours ] || echo _$$v).pt; \
-	  ros2 run gravgrasp_detector train --data out/scenes_v1 --out out/training/$$v --epochs $(EPOCHS) \
-	    --bf16 --no-progress $${spec#*:}; \
+	  ros2 run gravgrasp_detector train --data $(TRAIN_DATA) --out out/training/$$v --epochs $(EPOCHS) \
+	    $(BF16) --no-progress $(TRAIN_ARGS) $${spec#*:}; \
 	  cp out/training/$$v/model.pt $$dest.tmp && mv $$dest.tmp $$dest && echo "wrote $$dest"; \
 	done
 
