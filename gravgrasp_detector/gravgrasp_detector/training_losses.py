@@ -28,10 +28,8 @@ def losses(model, outputs, batch, config: TrainConfig):
     b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)])
     ijk = torch.cat([ex["index"] for ex in batch]).long()
     target_valid = torch.cat([ex["valid"] for ex in batch])
-    loss_valid = validness_loss(outputs["validness_logit"], (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2]),
-                                target_valid, config)
-
     at = (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2])
+    loss_valid = validness_loss(outputs["validness_logit"], at, target_valid, config)
     pos = target_valid > 0.5
     zero = outputs["score_n"].sum() * 0.0
     if config.target == "binary" or not pos.any():

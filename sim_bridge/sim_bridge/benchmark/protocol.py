@@ -81,11 +81,12 @@ def object_pool(meshes_dir: str | None, stroke_m: float | None = None, only: tup
         if not sources:
             raise ObjectError(f"--meshes {meshes_dir}: no .urdf or .obj files there")
         if only is not None:
-            missing = sorted(set(only) - {s.name for s in sources})
+            keep = set(only)
+            missing = sorted(keep - {s.name for s in sources})
             if missing:
                 raise ObjectError(f"--only: {len(missing)} listed meshes are not in {meshes_dir} "
                                   f"(e.g. {', '.join(missing[:3])}): check the list against that directory")
-            sources = [s for s in sources if s.name in set(only)]
+            sources = [s for s in sources if s.name in keep]
     else:
         sources = procedural_sources(PROCEDURAL_POOL, PROCEDURAL_SEED)
     usable, excluded = [], []

@@ -213,19 +213,11 @@ def negative_voxels(label_index, X_failed, X_collides):
     -> {index (M,3) uint8 sorted, reason (M,) uint8}."""
     codes = np.concatenate([np.full(len(X_failed), NEGATIVE_FAILED), np.full(len(X_collides), NEGATIVE_COLLIDES)])
     X = np.concatenate([np.asarray(X_failed).reshape(-1, 4, 4), np.asarray(X_collides).reshape(-1, 4, 4)])
-    ijk = np.floor(X[:, :3, 3] / (VOLUME_SIZE_M / RESOLUTION)).astype(np.int64)
-    inside = ((ijk >= 0) & (ijk < RESOLUTION)).all(axis=1)
-    flat = np.ravel_multi_index(ijk[inside].T, (RESOLUTION,) * 3) if inside.any() else np.zeros(0, np.int64)
-    codes = codes[inside]
-    labelled = np.ravel_multi_index(np.asarray(label_index, np.int64).reshape(-1, 3).T, (RESOLUTION,) * 3)
-    keep = ~np.isin(flat, labelled)
-    flat, codes = flat[keep], codes[keep]
-    order = np.lexsort((codes, flat))  # per voxel, the smallest code first
-    flat, codes = flat[order], codes[order]
-    first = np.ones(len(flat), bool)
-    first[1:] = flat[1:] != flat[:-1]
-    index = np.stack(np.unravel_index(flat[first], (RESOLUTION,) * 3), 1) if first.any() else np.zeros((0, 3))
-    return {"index": index.astype(np.uint8).reshape(-1, 3), "reason": codes[first].astype(np.uint8)}
+    # voxel_labels keeps the best "score" per voxel: minus the code keeps the smallest code
+    per_voxel = voxel_labels(X, -codes)
+    flat = lambda ijk: np.ravel_multi_index(np.asarray(ijk, np.int64).reshape(-1, 3).T, (RESOLUTION,) * 3)  # noqa: E731
+    keep = ~np.isin(flat(per_voxel["index"]), flat(label_index))
+    return {"index": per_voxel["index"][keep], "reason": codes[per_voxel["grasp"][keep]].astype(np.uint8)}
 
 
 def _resting_poses(table):
