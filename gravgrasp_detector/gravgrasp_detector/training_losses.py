@@ -24,10 +24,12 @@ from .training_config import TrainConfig
 
 
 def losses(model, outputs, batch, config: TrainConfig):
-    """-> dict of the three loss terms and their weighted total, for a batch."""
-    b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)])
-    ijk = torch.cat([ex["index"] for ex in batch]).long()
-    target_valid = torch.cat([ex["valid"] for ex in batch])
+    """-> dict of the three loss terms and their weighted total, for a batch (examples on
+    the CPU, outputs wherever the model runs)."""
+    device = outputs["validness_logit"].device
+    b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)]).to(device)
+    ijk = torch.cat([ex["index"] for ex in batch]).long().to(device)
+    target_valid = torch.cat([ex["valid"] for ex in batch]).to(device)
     at = (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2])
     loss_valid = validness_loss(outputs["validness_logit"], at, target_valid, config)
     pos = target_valid > 0.5
@@ -35,13 +37,13 @@ def losses(model, outputs, batch, config: TrainConfig):
     if config.target == "binary" or not pos.any():
         loss_score = zero
     else:
-        target_score = torch.cat([ex["score"] for ex in batch])
+        target_score = torch.cat([ex["score"] for ex in batch]).to(device)
         loss_score = F.mse_loss(outputs["score_n"][at][pos], target_score[pos]) / model.score_scale_n ** 2
     if not pos.any():
         loss_rot = zero
     else:
         channels = outputs["rotation"].permute(0, 2, 3, 4, 1)[at][pos].float()
-        loss_rot = rotation_loss(model.rotation_representation, channels, torch.cat([ex["R"] for ex in batch])[pos])
+        loss_rot = rotation_loss(model.rotation_representation, channels, torch.cat([ex["R"] for ex in batch]).to(device)[pos])
     total = (config.loss_weight_score * loss_score + config.loss_weight_validness * loss_valid
              + config.loss_weight_rotation * loss_rot)
     return {"total": total, "score": loss_score, "validness": loss_valid, "rotation": loss_rot}
@@ -57,7 +59,7 @@ def validness_loss(logits, at, target_valid, config: TrainConfig):
     positive = valid_dense > 0.5
     n_positive = positive.sum().clamp_min(1)
     if config.positive_weight > 0:
-        pos_weight = torch.tensor(config.positive_weight)
+        pos_weight = torch.tensor(config.positive_weight, device=logits.device)
     else:
         pos_weight = (weight[~positive].sum() / n_positive).clamp(1.0, 1000.0)
     weight = torch.where(positive, pos_weight.to(weight.dtype), weight)
