@@ -39,13 +39,7 @@ class ModelFileError(RuntimeError):
 
 def tsdf_metadata(volume):
     """The `tsdf` metadata block describing a tsdf.TSDFVolume."""
-    return {
-        "size_m": volume.size_m,
-        "resolution": volume.resolution,
-        "voxel_size_m": volume.voxel_size_m,
-        "truncation_m": volume.truncation_m,
-        "convention": tsdf.TSDF_CONVENTION,
-    }
+    return tsdf.volume_metadata(volume.size_m, volume.resolution, volume.truncation_m / volume.voxel_size_m)
 
 
 def portable_training_data(training_data, root=None):

@@ -127,6 +127,14 @@ def check_camera_pose(T_task_camera, size_m, max_distance_m=3.0):
         )
 
 
+def volume_metadata(size_m=0.30, resolution=40, truncation_voxels=4):
+    """What a model file records of the volume it was trained on (TSDFVolume's defaults
+    are the scenes'); needs no Open3D, so a training machine without it can write models."""
+    voxel_size_m = float(size_m) / int(resolution)
+    return {"size_m": float(size_m), "resolution": int(resolution), "voxel_size_m": voxel_size_m,
+            "truncation_m": truncation_voxels * voxel_size_m, "convention": TSDF_CONVENTION}
+
+
 class TSDFVolume:
     """Fuses depth images into a `resolution`^3 TSDF of a `size_m` cube (task frame)."""
 

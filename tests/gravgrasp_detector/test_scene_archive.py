@@ -41,3 +41,25 @@ def test_a_broken_archive_or_an_empty_directory_is_one_clear_error(tmp_path, cap
     (tmp_path / "empty").mkdir()
     with pytest.raises(training_scenes.DataError, match="no scene files"):
         scene_archive.pack(tmp_path / "empty", tmp_path / "x.npz.xz")
+
+
+def test_a_training_machine_without_open3d_unpacks_trains_and_writes_a_model(tmp_path):
+    # As on the GPU box: the archive, the training code, no Open3D (its import blocked).
+    import subprocess
+    import sys
+
+    from gravgrasp_detector import model_file, tsdf
+
+    (tmp_path / "scenes").mkdir()
+    scene_archive.pack(write_scenes(tmp_path / "scenes", 4, seed=5), tmp_path / "a.npz.xz")
+    script = (
+        "import sys; sys.modules['open3d'] = None\n"
+        "from gravgrasp_detector import scene_archive, training\n"
+        f"scene_archive.unpack({str(tmp_path / 'a.npz.xz')!r}, {str(tmp_path / 'copy')!r})\n"
+        f"sys.exit(training.main(['--data', {str(tmp_path / 'copy')!r}, '--out', {str(tmp_path / 'run')!r},"
+        " '--epochs', '1', '--batch-size', '2', '--threads', '1', '--no-progress']))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    _, meta = model_file.load_model(tmp_path / "run" / "model.pt")
+    assert meta["tsdf"] == model_file.tsdf_metadata(tsdf.TSDFVolume())
+    assert meta["training_data"]["scenes_train"] + meta["training_data"]["scenes_val"] == 4
