@@ -110,7 +110,7 @@ def train(config: TrainConfig, progress=True, argv=None):
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         history, start_epoch = ckpt["history"], ckpt["epoch"]
-        torch.set_rng_state(ckpt["torch_rng"])
+        torch.set_rng_state(ckpt["torch_rng"].cpu())  # map_location moved it to the device
         print(f"resuming {out} at epoch {start_epoch}", flush=True)
 
     model.train()
