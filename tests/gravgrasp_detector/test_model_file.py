@@ -105,6 +105,8 @@ def test_detect_startup_says_one_short_fact_per_line():
     _, meta = model_file.load_model(shipped)
     lines = startup_lines(str(shipped), meta, "bf16", 1)
     assert lines[0] == "model: models/gravgrasp.pt" or lines[0] == f"model: {shipped}"
-    assert any(line.startswith("model trained: ") and "scenes from out/scenes_v1" in line for line in lines)
+    data = meta["training_data"]["data"]  # relative, as model files store paths
+    assert data.startswith("out/scenes_v")
+    assert any(line.startswith("model trained: ") and f"scenes from {data}," in line for line in lines), lines
     assert all(len(line) <= 80 and "{" not in line for line in lines), lines
     assert not any("/work/" in line for line in lines[1:]), lines
