@@ -145,8 +145,10 @@ data-scenes-v1: setup
 	  --scenes 1200 --seed 0 --out out/scenes_v1 --label-pose settled --no-symmetry --workers $(WORKERS)
 
 # The shipped model and the benchmark's comparison models, all trained on TRAIN_DATA
-# (v1: out/scenes_v1, make data-scenes-v1; v2: TRAIN_DATA=out/scenes_v2 with e.g.
-# TRAIN_ARGS=--negative-weight=250). Each run resumes from out/training/<variant>/checkpoint.pt.
+# (v1: out/scenes_v1, make data-scenes-v1; the shipped v2 models: TRAIN_DATA=out/scenes_v2
+# EPOCHS=15 TRAIN_ARGS='--negative-weight=250 --max-scenes=1580', i.e. scenes 0-1579 of the
+# 128-candidate tables). Each run resumes from out/training/<variant>/checkpoint.pt; on a GPU
+# machine `train` runs on CUDA (gravgrasp_detector README, *On a GPU machine*).
 # bf16 autocast only where the CPU has AMX (elsewhere it is emulated, slower than fp32).
 EPOCHS ?= 20
 TRAIN_DATA ?= out/scenes_v1
