@@ -39,7 +39,7 @@ class ModelFileError(RuntimeError):
 
 def tsdf_metadata(volume):
     """The `tsdf` metadata block describing a tsdf.TSDFVolume."""
-    return tsdf.volume_metadata(volume.size_m, volume.resolution, volume.truncation_m / volume.voxel_size_m)
+    return tsdf.volume_metadata(volume.size_m, volume.resolution, volume.truncation_voxels)
 
 
 def portable_training_data(training_data, root=None):

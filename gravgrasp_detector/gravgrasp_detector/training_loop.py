@@ -161,7 +161,7 @@ def train(config: TrainConfig, progress=True, argv=None):
     }
     # Model files load with weights_only=True: plain JSON types only, no numpy scalars.
     summary = json.loads(json.dumps(summary, default=float))
-    # Scenes are fused with tsdf.TSDFVolume's defaults (0.30 m, 4-voxel truncation).
+    # Scenes are fused with tsdf.TSDFVolume's defaults (tsdf.SIZE_M, tsdf.TRUNCATION_VOXELS).
     model_file.save_model(out / "model.pt", model.cpu(), tsdf.volume_metadata(resolution=resolution),
                           training_data=summary)
     atomic_files.save_json(out / "history.json", history)

@@ -27,9 +27,13 @@ def losses(model, outputs, batch, config: TrainConfig):
     """-> dict of the three loss terms and their weighted total, for a batch (examples on
     the CPU, outputs wherever the model runs)."""
     device = outputs["validness_logit"].device
+
+    def stacked(key):  # one field of every example, on the outputs' device
+        return torch.cat([ex[key] for ex in batch]).to(device)
+
     b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)]).to(device)
-    ijk = torch.cat([ex["index"] for ex in batch]).long().to(device)
-    target_valid = torch.cat([ex["valid"] for ex in batch]).to(device)
+    ijk = stacked("index").long()
+    target_valid = stacked("valid")
     at = (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2])
     loss_valid = validness_loss(outputs["validness_logit"], at, target_valid, config)
     pos = target_valid > 0.5
@@ -37,13 +41,13 @@ def losses(model, outputs, batch, config: TrainConfig):
     if config.target == "binary" or not pos.any():
         loss_score = zero
     else:
-        target_score = torch.cat([ex["score"] for ex in batch]).to(device)
+        target_score = stacked("score")
         loss_score = F.mse_loss(outputs["score_n"][at][pos], target_score[pos]) / model.score_scale_n ** 2
     if not pos.any():
         loss_rot = zero
     else:
         channels = outputs["rotation"].permute(0, 2, 3, 4, 1)[at][pos].float()
-        loss_rot = rotation_loss(model.rotation_representation, channels, torch.cat([ex["R"] for ex in batch]).to(device)[pos])
+        loss_rot = rotation_loss(model.rotation_representation, channels, stacked("R")[pos])
     total = (config.loss_weight_score * loss_score + config.loss_weight_validness * loss_valid
              + config.loss_weight_rotation * loss_rot)
     return {"total": total, "score": loss_score, "validness": loss_valid, "rotation": loss_rot}

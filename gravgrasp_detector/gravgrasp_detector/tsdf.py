@@ -127,7 +127,11 @@ def check_camera_pose(T_task_camera, size_m, max_distance_m=3.0):
         )
 
 
-def volume_metadata(size_m=0.30, resolution=40, truncation_voxels=4):
+# The volume the scenes are fused into (and so the models' input).
+SIZE_M, RESOLUTION, TRUNCATION_VOXELS = 0.30, 40, 4
+
+
+def volume_metadata(size_m=SIZE_M, resolution=RESOLUTION, truncation_voxels=TRUNCATION_VOXELS):
     """What a model file records of the volume it was trained on (TSDFVolume's defaults
     are the scenes'); needs no Open3D, so a training machine without it can write models."""
     voxel_size_m = float(size_m) / int(resolution)
@@ -138,10 +142,11 @@ def volume_metadata(size_m=0.30, resolution=40, truncation_voxels=4):
 class TSDFVolume:
     """Fuses depth images into a `resolution`^3 TSDF of a `size_m` cube (task frame)."""
 
-    def __init__(self, size_m=0.30, resolution=40, truncation_voxels=4, max_depth_m=3.0):
+    def __init__(self, size_m=SIZE_M, resolution=RESOLUTION, truncation_voxels=TRUNCATION_VOXELS, max_depth_m=3.0):
         self.size_m = float(size_m)
         self.resolution = int(resolution)
         self.voxel_size_m = self.size_m / self.resolution
+        self.truncation_voxels = truncation_voxels
         self.truncation_m = truncation_voxels * self.voxel_size_m
         self.max_depth_m = float(max_depth_m)  # farther returns are ignored
         self.origin = np.zeros(3)  # grid corner in the task frame

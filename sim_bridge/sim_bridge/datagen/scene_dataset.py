@@ -215,7 +215,10 @@ def negative_voxels(label_index, X_failed, X_collides):
     X = np.concatenate([np.asarray(X_failed).reshape(-1, 4, 4), np.asarray(X_collides).reshape(-1, 4, 4)])
     # voxel_labels keeps the best "score" per voxel: minus the code keeps the smallest code
     per_voxel = voxel_labels(X, -codes)
-    flat = lambda ijk: np.ravel_multi_index(np.asarray(ijk, np.int64).reshape(-1, 3).T, (RESOLUTION,) * 3)  # noqa: E731
+
+    def flat(ijk):
+        return np.ravel_multi_index(np.asarray(ijk, np.int64).reshape(-1, 3).T, (RESOLUTION,) * 3)
+
     keep = ~np.isin(flat(per_voxel["index"]), flat(label_index))
     return {"index": per_voxel["index"][keep], "reason": codes[per_voxel["grasp"][keep]].astype(np.uint8)}
 
