@@ -153,6 +153,28 @@ def test_modes_of_lifted_objects_are_tabulated_with_how_many_then_held():
     assert "| ours | 1.5 | 2 / 3 | 0 / 1 |" in lines and "| ours | 0.1 | 0 / 0 | 0 / 0 |" in lines
 
 
+def test_a_motion_stopped_by_contact_is_told_apart_by_where_and_round_ends_are_per_method():
+    def attempt(outcome, reason):
+        return {"outcome": outcome, "reason": reason, "success": outcome == "success"}
+    contact = "stopped by contact after 0.004 of 0.150 m: 60 N on the hand exceeds the 60 N limit"
+    jam = attempt("unreachable", f"arm could not reach the grasp pose: {contact}")
+    jam_pre = attempt("unreachable", f"arm could not reach the pregrasp pose: {contact}")
+    blocked = attempt("unreachable", f"arm could not reach the lift pose: {contact}")
+    out_of_box = attempt("unreachable", "lift TCP position [0.1, 0.1, 0.9] m is outside the workspace box")
+    assert [report.outcome_class(a) for a in (jam, jam_pre, blocked, out_of_box, attempt("success", "held"))] == [
+        "jammed_on_approach", "jammed_on_approach", "lift_blocked", "unreachable", "success"]
+    rounds = [{"method": "ours", "mass_kg": 1.5, "end": "no_feasible_grasp", "attempts": [jam, blocked]},
+              {"method": "ours", "mass_kg": 1.5, "end": "table_clear", "attempts": [attempt("success", "held")]},
+              {"method": "binary", "mass_kg": 1.5, "end": "table_clear", "attempts": [jam_pre]}]
+    plan = {"ours": [1.5], "binary": [1.5]}
+    outcomes = report.outcome_lines(rounds, plan)
+    assert "| method | weight [kg] | success | jammed_on_approach | lift_blocked |" in outcomes
+    assert "| ours | 1.5 | 1 | 1 | 1 |" in outcomes and "| binary | 1.5 | 0 | 1 | 0 |" in outcomes
+    ends = report.end_lines(rounds, plan)
+    assert "| method | weight [kg] | no_feasible_grasp | table_clear |" in ends
+    assert "| ours | 1.5 | 1 | 1 |" in ends and "| binary | 1.5 | 0 | 1 |" in ends
+
+
 def test_success_rates():
     assert clearing.success_rates(2, 4, 5) == (0.5, 0.4)
     assert all(math.isnan(v) for v in clearing.success_rates(0, 0, 0))

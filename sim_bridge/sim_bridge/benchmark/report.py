@@ -97,7 +97,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
             attempts.append({"method": r["method"], "mass_kg": r["mass_kg"], "scene_id": r["scene_id"],
                              "attempt": i + 1, "object": a["lifted"], "pose": a["pose"],
                              "score": a["score"], "score_unit": "probability" if r["target"] == "binary" else "N",
-                             "validness": a["validness"], "rank": a["rank"], "outcome": a["outcome"],
+                             "validness": a["validness"], "rank": a["rank"], "outcome": outcome_class(a),
                              "success": a["success"], "reason": a["reason"], "mode": a.get("mode", "")})
     atomic_files.save_json(out / "attempts.json", {
         "schema_version": SCHEMA_VERSION, "attempts": attempts,
@@ -128,10 +128,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     lines += ["", *comparison_lines(comparisons)]
     lines += ["", *outcome_lines(rounds, plan)]
     lines += ["", *mode_lines(rounds, plan)]
-    ends = {}
-    for r in rounds:
-        ends[r["end"]] = ends.get(r["end"], 0) + 1
-    lines += ["", "Round ends: " + (", ".join(f"{k} {v}" for k, v in sorted(ends.items())) or "none"), ""]
+    lines += ["", *end_lines(rounds, plan), ""]
     lines.append(f"Excluded objects ({len(excluded)}): " + (", ".join(
         f"{e['name']} ({e.get('min_width_mm', '?')} mm)" if "min_width_mm" in e else f"{e['name']} ({e['reason']})"
         for e in excluded) or "none"))
@@ -155,21 +152,54 @@ def comparison_lines(comparisons) -> list:
     return lines
 
 
+def outcome_class(attempt: dict) -> str:
+    """An attempt's outcome, with the executor's `unreachable` split by where the arm's
+    contact limit stopped it: `jammed_on_approach` (on the way to the pre-grasp or grasp
+    pose: the open hand ran into something) or `lift_blocked` (the closed hand could not
+    rise: it holds something that is held down, or presses on the table). Other
+    `unreachable` attempts (a target outside the arm's reach) keep the executor's word."""
+    outcome, reason = attempt["outcome"], attempt.get("reason", "")
+    if outcome == "unreachable" and "stopped by contact" in reason:
+        if reason.startswith(("arm could not reach the pregrasp pose", "arm could not reach the grasp pose")):
+            return "jammed_on_approach"
+        if reason.startswith("arm could not reach the lift"):
+            return "lift_blocked"
+    return outcome
+
+
 def outcome_lines(rounds, plan) -> list:
     """Markdown table: how every attempt ended, per method and weight (why SR is what it is)."""
+    counts = _tally(rounds, lambda r: [outcome_class(a) for a in r["attempts"]])
+    outcomes = ["success", *sorted({o for row in counts.values() for o in row} - {"success"})]
+    return ["Outcomes of the attempts:", "", *_count_table(counts, outcomes, plan)]
+
+
+def end_lines(rounds, plan) -> list:
+    """Markdown table: why each round ended, per method and weight (a round that ends
+    with objects left lowers CR; no_feasible_grasp: every detected grasp failed the
+    executor's own checks)."""
+    counts = _tally(rounds, lambda r: [r["end"]])
+    ends = sorted({e for row in counts.values() for e in row})
+    return ["How the rounds ended:", "", *_count_table(counts, ends, plan)]
+
+
+def _tally(rounds, labels_of) -> dict:
+    """{(method, kg): {label: count}} over the labels `labels_of(round)` lists."""
     counts = {}
     for r in rounds:
         row = counts.setdefault((r["method"], float(r["mass_kg"])), {})
-        for a in r["attempts"]:
-            row[a["outcome"]] = row.get(a["outcome"], 0) + 1
-    outcomes = ["success", *sorted({o for row in counts.values() for o in row} - {"success"})]
-    lines = ["Outcomes of the attempts:", "", "| method | weight [kg] | " + " | ".join(outcomes) + " |",
-             "| --- | --- |" + " --- |" * len(outcomes)]
+        for label in labels_of(r):
+            row[label] = row.get(label, 0) + 1
+    return counts
+
+
+def _count_table(counts, columns, plan) -> list:
+    lines = ["| method | weight [kg] | " + " | ".join(columns) + " |", "| --- | --- |" + " --- |" * len(columns)]
     for method, weights_kg in plan.items():
         for w in weights_kg:
             row = counts.get((method, float(w)))
             if row:
-                lines.append(f"| {method} | {w:g} | " + " | ".join(str(row.get(o, 0)) for o in outcomes) + " |")
+                lines.append(f"| {method} | {w:g} | " + " | ".join(str(row.get(c, 0)) for c in columns) + " |")
     return lines
 
 
