@@ -14,6 +14,7 @@ from sim_bridge.datagen.object_sources import object_from_table
 from sim_bridge.datagen.scene_dataset import NEGATIVE_COLLIDES, NEGATIVE_FAILED, negative_voxels, run_scene_stage
 from sim_bridge.datagen.voxel_labels import RESOLUTION
 from sim_bridge.physics import hand_collision
+from sim_bridge.physics.hand_model import FingerKinematics
 from sim_bridge.physics.gravity_projection import gravity_rejection_score
 from sim_bridge.physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 
@@ -21,6 +22,8 @@ from test_datagen_objects import write_urdf
 from test_object_symmetry import surface_distance
 
 pytestmark = pytest.mark.drake
+FINGER_JOINTS = ("left_coupler", "left_driver", "left_follower", "left_spring_link",
+                 "right_coupler", "right_driver", "right_follower", "right_spring_link")
 
 
 @pytest.fixture(scope="module")
@@ -45,11 +48,16 @@ def grasp_data(tmp_path_factory):
         # must carry the commanded pose, which clears the object
         settled = X.copy()
         settled[:, :3, 3] += 0.005 * X[:, :3, 2]
+        # fingers closed in parallel (as on a precision grasp, driver at 0.6 rad): their
+        # pad tips reach ~17 mm past the TCP, 13 mm further than the open hand's
+        q = np.where(grasped, 0.6, 0.0)[:, None]
+        angles = np.hstack([0 * q, q, -0.96 * q, q] * 2).astype(np.float32)
         np.savez(objects / f"{name}.npz", name=np.asarray(name), source_kind=np.asarray("mesh"),
                  source=np.asarray(f"{name}.urdf"), X_object_tcp_candidate=X.astype(np.float32),
                  X_object_tcp=settled.astype(np.float32),
                  scores_n=np.where(grasped[:, None], scores, 0), mode=mode, grasped=grasped,
-                 mode_names=np.asarray(MODE_NAMES))
+                 mode_names=np.asarray(MODE_NAMES), finger_joint_names=np.asarray(FINGER_JOINTS),
+                 finger_joint_angles=angles)
     return root
 
 
@@ -67,7 +75,8 @@ def scenes(grasp_data, tmp_path_factory):
 
 
 def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
-    total, copies, mirrored = 0, 0, 0
+    total, copies, mirrored, dropped = 0, 0, 0, 0
+    fingers = FingerKinematics()
     symmetries = {p.stem: np.load(p)["transforms"] for p in (grasp_data / "objects" / "symmetry").glob("*.npz")}
     for name, S in symmetries.items():  # every copy moves the surface onto itself
         m = trimesh.load(grasp_data / "meshes" / f"{name}.obj")
@@ -115,7 +124,16 @@ def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):
             # (its own too: the commanded pose is where the open hand really goes)
             obst = np.concatenate(others)
             assert not hand_collision.collides(X, obst, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)[0]
+            # ... and so does it at the voxel centre, the pose detection publishes, where
+            # the closed fingers' pad tips stay above the table too
+            X_exec = X.copy()
+            X_exec[:3, 3] = (z["label_index"][i] + 0.5) * (VOLUME_SIZE_M / RESOLUTION)
+            assert not hand_collision.collides(X_exec, obst, table_z_m=TABLE_HEIGHT_M, approach_m=0.05)[0]
+            tips = fingers.pad_tips_tcp(t["finger_joint_names"], t["finger_joint_angles"][row])[0]
+            assert (tips @ X_exec[:3, :3].T + X_exec[:3, 3])[:, 2].min() >= TABLE_HEIGHT_M
+        dropped += int(z["n_grasps_dropped_executed"])
     assert total > 30 and 0 < copies < total and 0 < mirrored < copies
+    assert dropped > 0  # the check at the executed pose is not vacuous here
 
 
 def test_explicit_negatives_are_failures_and_colliding_poses_off_the_labels(grasp_data, scenes):
@@ -194,3 +212,14 @@ def test_without_symmetry_a_scene_has_just_the_simulated_grasps_labels(grasp_dat
     assert not plain["label_symmetry"].any()
     assert len(plain["label_score"]) == int(copied["n_labels_without_copies"]) == int(plain["n_labels_without_copies"])
     assert len(copied["label_score"]) > len(plain["label_score"])
+
+
+def test_without_the_execution_check_labels_are_checked_only_where_simulated(grasp_data, scenes, tmp_path):
+    unchecked = first_scene(grasp_data, tmp_path, execution_check=False)
+    checked = np.load(scenes / "scenes" / "000000.npz")
+    np.testing.assert_array_equal(unchecked["tsdf"], checked["tsdf"])
+    assert bool(checked["execution_check"]) and not bool(unchecked["execution_check"])
+    assert int(unchecked["n_grasps_dropped_executed"]) == 0 < int(checked["n_grasps_dropped_executed"])
+    assert (int(checked["n_grasps_collision_free"]) + int(checked["n_grasps_dropped_executed"])
+            == int(unchecked["n_grasps_collision_free"]))
+    assert len(checked["label_score"]) < len(unchecked["label_score"])

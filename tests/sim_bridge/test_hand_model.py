@@ -142,3 +142,21 @@ def test_the_hand_is_its_own_mirror_image_about_the_tcp_yz_plane():
 
         assert off_surface_m(points * [-1, 1, 1]).max() < 1e-4
         assert np.quantile(off_surface_m(points * [1, 1, -1] + [0, 0, 0.1]), 0.5) > 0.01
+
+
+def test_finger_kinematics_puts_the_pad_tips_where_the_model_has_them():
+    fk = hand_model.FingerKinematics()
+    names = ("left_coupler", "left_driver", "left_follower", "left_spring_link",
+             "right_coupler", "right_driver", "right_follower", "right_spring_link")
+    # open (all joints at 0): tips at the open fingertip depth, inner faces the stroke apart
+    open_tips = fk.pad_tips_tcp(names, np.zeros((1, 8)))[0]
+    assert open_tips.shape == (8, 3)
+    np.testing.assert_allclose(open_tips[:, 2], hand_model.FINGER_TIP_Z_M, atol=1e-3)
+    assert np.abs(open_tips[:, 1]).min() == pytest.approx(hand_model.MAX_STROKE_M / 2, abs=1e-3)
+    # closed in parallel, as the linkage does on nothing (coupler 0, follower ~ -0.96 x
+    # driver, spring link = driver; grasp tables): the tips move 13-14 mm further out
+    # along the approach and the pads nearly meet
+    q = 0.76
+    closed = fk.pad_tips_tcp(names, [[0.0, q, -0.96 * q, q] * 2])[0]
+    assert closed[:, 2].max() == pytest.approx(0.018, abs=1.5e-3)
+    assert np.abs(closed[:, 1]).min() < 0.005

@@ -212,6 +212,9 @@ def main(argv=None):
                          "and mirror symmetry of the object, which hold alike; see object_symmetry)")
     sc.add_argument("--no-mirror-copies", action="store_true",
                     help="copies at rotational symmetries only (none at mirror symmetries)")
+    sc.add_argument("--no-execution-check", action="store_true",
+                    help="check a grasp only where it was simulated (the v2 scenes), not also where the "
+                         "robot executes it: at its voxel centre, with the fingers closed above the table")
 
     args = p.parse_args(argv)
     try:
@@ -244,7 +247,7 @@ def _run(p, args):
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
                         max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
                         label_pose=args.label_pose, symmetry=not args.no_symmetry,
-                        mirrors=not args.no_mirror_copies)
+                        mirrors=not args.no_mirror_copies, execution_check=not args.no_execution_check)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
 

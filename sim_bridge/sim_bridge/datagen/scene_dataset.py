@@ -18,7 +18,14 @@ For scene i (seed from --seed and i only):
    +x and -x scores exchanged);
 4. drop a grasp if the open hand at that pose, or on its last `approach_m` of
    straight approach, intersects the table or another object (and, for
-   commanded poses, the grasped object itself);
+   commanded poses, the grasped object itself); with `execution_check`
+   (default) also if it would fail where the robot executes it: detection
+   publishes the *voxel centre* (up to half a voxel off the simulated pose, so a
+   deep grasp lands in its object and jams on the approach), so the open hand
+   and its approach are checked there too, and the fingers closed as they
+   settled in the simulation (their pad tips reach up to 14 mm past the open
+   hand's) must stay above the table there (else the fingertips press into it
+   and the lift is blocked);
 5. f_g from the 6 disturbance scores and the scene gravity (paper Eq. 1);
 6. label the TCP voxel of each grasp (best f_g per voxel).
 
@@ -36,6 +43,7 @@ commanded pose, symmetries too; negative_reason 1) or a held grasp whose open ha
 or approach collides in this scene (reason 2).
 """
 
+import functools
 import hashlib
 import json
 import pathlib
@@ -51,12 +59,13 @@ from ..parallel import make_executor, run_tasks, task_seed
 from ..physics import hand_collision
 from ..physics.depth_rendering import DepthRenderer, random_view_on_hemisphere
 from ..physics.gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECTION_EPS, gravity_rejection_score
+from ..physics.hand_model import FingerKinematics
 from ..physics.scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from . import object_symmetry
 from .object_grasps import MODE_NAMES, load_table
 from .object_sources import object_from_table, shape_sha256
 from .resting_poses import RestingPoses
-from .voxel_labels import RESOLUTION, voxel_labels
+from .voxel_labels import RESOLUTION, at_voxel_centres, voxel_labels
 
 APPROACH_M = 0.05  # straight approach checked for collisions (pre-grasp distance)
 # VGN's simulated camera
@@ -77,6 +86,7 @@ class SceneTask:
     label_pose: str = "commanded"   # | "settled"
     symmetry: bool = True           # also place grasps at the object's symmetries
     mirrors: bool = True            # ... its mirror symmetries included
+    execution_check: bool = True    # step 4 at the voxel centre, closed pad tips vs the table
 
 
 def usable_tables(objects_dir):
@@ -130,7 +140,7 @@ def _run_scene(task):
     points = [hand_collision.surface_points(m, seed=0) @ X[:3, :3].T + X[:3, 3] for m, X in zip(meshes, poses)]
     X_all, f_all, mode_all, obj_all, row_all, sym_all = [], [], [], [], [], []
     failed_all, collides_all = [], []  # poses known not to work here: the explicit negatives
-    n_projected = 0
+    n_projected, n_dropped_executed = 0, 0
     for k, (t, X_obj) in enumerate(zip(tables, poses)):
         key = "X_object_tcp_candidate" if task.label_pose == "commanded" else "X_object_tcp"
         S = None
@@ -161,6 +171,10 @@ def _run_scene(task):
         obstacles = [p for j, p in enumerate(points) if j != k or task.label_pose == "commanded"]
         others = np.concatenate(obstacles) if obstacles else None
         free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
+        if task.execution_check:
+            executed = executable(X, t, rows, others, task.approach_m) & free
+            n_dropped_executed += int(free.sum() - executed.sum())
+            free = executed
         collides_all.append(X[~free])
         X, rows, sym = X[free], rows[free], sym[free]
         X_all.append(X)
@@ -194,6 +208,7 @@ def _run_scene(task):
         intrinsics=np.asarray([IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX, intrinsics.cx, intrinsics.cy]),
         n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
         n_labels_without_copies=np.asarray(n_without_copies),
+        execution_check=np.asarray(task.execution_check), n_grasps_dropped_executed=np.asarray(n_dropped_executed),
         negative_index=negatives["index"], negative_reason=negatives["reason"],
         table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
         gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
@@ -201,6 +216,25 @@ def _run_scene(task):
         mirrors=np.asarray(task.symmetry and task.mirrors),
         mode_names=np.asarray(MODE_NAMES), seed=np.asarray(task_seed(task.master_seed, "scene", task.index), np.uint64),
     )
+
+
+def executable(X_task_tcp, table, rows, obstacles, approach_m):
+    """(N,) bool: grasp N (pose X_task_tcp, row rows[n] of its object's table) still works
+    where the robot will execute it, the centre of its voxel: the open hand and its
+    approach clear `obstacles` (surface points) and the table, and the pad tips of the
+    fingers closed as they settled in the simulation stay above the table."""
+    X = at_voxel_centres(X_task_tcp)
+    ok = ~hand_collision.collides(X, obstacles, table_z_m=TABLE_HEIGHT_M, approach_m=approach_m)
+    if len(rows):
+        tips = _finger_kinematics().pad_tips_tcp(table["finger_joint_names"], table["finger_joint_angles"][rows])
+        tip_z = np.einsum("nj,nkj->nk", X[:, 2, :3], tips) + X[:, 2, 3][:, None]
+        ok &= tip_z.min(axis=1) >= TABLE_HEIGHT_M
+    return ok
+
+
+@functools.lru_cache(maxsize=1)
+def _finger_kinematics():
+    return FingerKinematics()  # a Drake plant: once per worker process
 
 
 NEGATIVE_FAILED, NEGATIVE_COLLIDES = 1, 2  # negative_reason codes
@@ -253,7 +287,7 @@ class SceneStore:
 
 def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
                     max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings(),
-                    label_pose="commanded", symmetry=True, mirrors=True):
+                    label_pose="commanded", symmetry=True, mirrors=True, execution_check=True):
     """Generate scenes 0..n_scenes-1 that do not exist yet; returns a summary dict."""
     objects_dir = pathlib.Path(objects_out_dir) / "objects"
     names = tuple(usable_tables(objects_dir))
@@ -270,6 +304,8 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names))
+    if execution_check:  # only when on: directories made before it existed resume without it
+        manifest["execution_check"] = True
     mpath = store.dir / "manifest.json"
     if mpath.exists():
         old = json.loads(mpath.read_text())
@@ -281,7 +317,7 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
         atomic_files.save_json(mpath, manifest)
     tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
                        settings=settings, label_pose=label_pose, symmetry=bool(symmetry),
-                       mirrors=bool(symmetry and mirrors))
+                       mirrors=bool(symmetry and mirrors), execution_check=bool(execution_check))
              for i in range(n_scenes) if not store.path(i).exists()]
     errors = []
 

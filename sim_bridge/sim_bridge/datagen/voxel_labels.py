@@ -47,6 +47,16 @@ def voxel_labels(X_task_tcp, scores_g, size_m=VOLUME_SIZE_M, resolution=RESOLUTI
     }
 
 
+def at_voxel_centres(X_task_tcp, size_m=VOLUME_SIZE_M, resolution=RESOLUTION):
+    """(N, 4, 4): each pose moved to the centre of the voxel that contains its TCP, same
+    rotation. That is the pose detection publishes for the voxel this grasp labels, so
+    the pose the robot executes: up to half a voxel off the simulated one on each axis."""
+    X = np.array(X_task_tcp, dtype=float).reshape(-1, 4, 4)
+    voxel = size_m / resolution
+    X[:, :3, 3] = (np.floor(X[:, :3, 3] / voxel) + 0.5) * voxel
+    return X
+
+
 def dense_labels(labels, resolution=RESOLUTION):
     """Dense (score, validness, e_x, e_z) volumes from sparse labels, for training.
 

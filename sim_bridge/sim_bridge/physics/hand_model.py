@@ -42,7 +42,7 @@ import trimesh
 # against this model by tests/sim_bridge/test_hand_model.py.
 from robotiq_driver.hand_geometry import (  # noqa: E402,F401  (re-exported)
     BODY_HALF_EXTENTS_M, FINGER_HALF_WIDTH_X_M, FINGER_LENGTH_M, FLANGE_TO_PALM_M, FLANGE_TO_TCP_M,
-    MAX_STROKE_M, PAD_LENGTH_M, PAD_WIDTH_M, PALM_TO_TCP_M)
+    FINGER_TIP_Z_M, MAX_STROKE_M, PAD_LENGTH_M, PAD_WIDTH_M, PALM_TO_TCP_M)
 
 # Driver joint travel: 0 = open, 0.8 rad = closed (Menagerie).
 DRIVER_OPEN_RAD = 0.0
@@ -254,3 +254,44 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
                 plant.get_source_id(), gid, proximity_properties, RoleAssign.kReplace
             )
     return Hand(mi, (left, right), acts, tcp, links, flange)
+
+
+# Tip edge of each pad's collision boxes (Menagerie pad_box1/2) in the pad frame: x
+# across the pad, y from the inner (gripping) face -6.6 mm to the back +1.4 mm, at the
+# tip z = 37.5 mm.
+PAD_TIP_CORNERS_PAD_M = np.array([[x, y, 0.0375] for x in (-0.011, 0.011) for y in (-0.0066, 0.0014)])
+
+
+class FingerKinematics:
+    """The hand's finger linkage without dynamics: where the pads are for given joint
+    angles (a grasp table's `finger_joint_angles`, recorded when the object settled).
+    One welded hand in its own plant; build once per process and reuse."""
+
+    def __init__(self):
+        # lazy: pydrake (see add_hand)
+        from pydrake.geometry import ProximityProperties
+        from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+        from pydrake.systems.framework import DiagramBuilder
+
+        builder = DiagramBuilder()
+        self._plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 1e-3)
+        self._hand = add_hand(self._plant, scene_graph, ProximityProperties())
+        self._plant.Finalize()
+        self._context = self._plant.CreateDefaultContext()
+        self._pads = [self._plant.GetBodyByName(f"{side}_pad") for side in ("left", "right")]
+
+    def pad_tips_tcp(self, joint_names, joint_angles) -> np.ndarray:
+        """(N, 8, 3) [m]: the tip corners of both pads (left 4, right 4) in the TCP frame
+        for each row of `joint_angles` (N, len(joint_names)) [rad]; names as in grasp
+        tables ("left_driver", ...: the joint is "<name>_joint")."""
+        plant, ctx = self._plant, self._context
+        joints = [plant.GetJointByName(f"{n}_joint") for n in joint_names]
+        angles = np.asarray(joint_angles, float).reshape(-1, len(joints))
+        out = np.empty((len(angles), 2 * len(PAD_TIP_CORNERS_PAD_M), 3))
+        for r, q in enumerate(angles):
+            for j, a in zip(joints, q):
+                j.set_angle(ctx, float(a))
+            X_tcp_W = plant.CalcRelativeTransform(ctx, self._hand.tcp_frame, plant.world_frame())
+            out[r] = np.vstack([(X_tcp_W @ plant.EvalBodyPoseInWorld(ctx, pad)).multiply(PAD_TIP_CORNERS_PAD_M.T).T
+                                for pad in self._pads])
+        return out
