@@ -66,3 +66,34 @@ def swept_boxes(approach_m: float) -> np.ndarray:
     boxes = OPEN_HAND_BOXES_TCP.copy()
     boxes[:, 0, 2] -= approach_m
     return boxes
+
+
+# Closing moves the pad tips further along the approach: the linkage turns the fingers
+# inwards and down. (opening between the pads [m], pad tip z in the TCP frame [m]) of the
+# fingers closing on nothing, measured on the Drake model (sim_bridge hand_model
+# .FingerKinematics; tests/sim_bridge/test_hand_model.py checks it).
+PAD_TIP_Z_BY_OPENING_M = np.array([
+    (0.0, 0.0179), (0.0136, 0.0179), (0.0207, 0.0176), (0.0277, 0.0172), (0.0347, 0.0165),
+    (0.0416, 0.0157), (0.0484, 0.0146), (0.0550, 0.0134), (0.0615, 0.0120), (0.0678, 0.0103),
+    (0.0739, 0.0085), (0.0798, 0.0066), (0.0854, 0.0044)])
+PAD_BACK_M = 0.008  # pad thickness behind its gripping face
+
+
+def pad_tip_z_m(opening_m) -> np.ndarray:
+    """Pad tip z in the TCP frame [m] with the fingers closed to `opening_m` (array-like)."""
+    return np.interp(opening_m, PAD_TIP_Z_BY_OPENING_M[:, 0], PAD_TIP_Z_BY_OPENING_M[:, 1])
+
+
+def closed_pad_tips_tcp(opening_m) -> np.ndarray:
+    """(N, 8, 3): the tip corners of both pads in the TCP frame [m] with the fingers
+    closed (in parallel, as on nothing or a precision grasp) to each `opening_m` (N,):
+    where they reach once they stop on an object that wide."""
+    w = np.atleast_1d(np.asarray(opening_m, float))
+    x = np.array([-1, -1, 1, 1] * 2) * PAD_WIDTH_M / 2
+    inner = np.array([0, 1, 0, 1] * 2) * PAD_BACK_M
+    side = np.array([-1] * 4 + [1] * 4)
+    tips = np.empty((len(w), 8, 3))
+    tips[:, :, 0] = x
+    tips[:, :, 1] = side * (w[:, None] / 2 + inner)
+    tips[:, :, 2] = pad_tip_z_m(w)[:, None]
+    return tips

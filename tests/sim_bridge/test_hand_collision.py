@@ -1,4 +1,6 @@
 import numpy as np
+import pytest
+import trimesh
 
 from sim_bridge.physics import hand_collision
 from sim_bridge.physics.hand_model import MAX_STROKE_M
@@ -68,3 +70,17 @@ def test_shifted_poses_match_the_direct_check():
         Xo[:, :3, 3] += o * X[:, :3, 2]
         np.testing.assert_array_equal(fast[:, j], hand_collision.collides(Xo, pts, approach_m=0.05, margin_m=0.002))
     assert fast.any() and not fast.all()
+
+
+def test_the_opening_the_pads_stop_at_is_the_objects_extent_between_them():
+    box = trimesh.creation.box((0.03, 0.05, 0.08))  # x, y (the closing axis below), z
+    pts = hand_collision.surface_points(box)
+    X = np.eye(4)
+    X[:3, :3] = np.diag([1.0, -1.0, -1.0])  # approach down, closing along y
+    X[2, 3] = 0.02  # 2 cm below the top face: the pads span the sides
+    assert hand_collision.closing_opening_m(X, pts, [0.0])[0] == pytest.approx(0.05, abs=1e-6)
+    X[2, 3] = 0.08  # 4 cm above the box: nothing between the pads, the fallback
+    assert hand_collision.closing_opening_m(X, pts, [0.07])[0] == 0.07
+    # closed that far, the pad tips reach hand_geometry's depth for a 50 mm opening
+    low = hand_collision.closed_tips_lowest_z(X, [0.05])[0]
+    assert low == pytest.approx(0.08 - hand_collision.pad_tip_z_m(0.05), abs=1e-9)

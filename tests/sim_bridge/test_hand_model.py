@@ -160,3 +160,19 @@ def test_finger_kinematics_puts_the_pad_tips_where_the_model_has_them():
     closed = fk.pad_tips_tcp(names, [[0.0, q, -0.96 * q, q] * 2])[0]
     assert closed[:, 2].max() == pytest.approx(0.018, abs=1.5e-3)
     assert np.abs(closed[:, 1]).min() < 0.005
+
+
+def test_pad_tip_depth_by_opening_matches_the_linkage():
+    """robotiq_driver.hand_geometry's table of where the pad tips reach when the fingers
+    stop at an opening (the sampler's table check) against the Drake model."""
+    from robotiq_driver import hand_geometry
+    fk = hand_model.FingerKinematics()
+    names = ("left_coupler", "left_driver", "left_follower", "left_spring_link",
+             "right_coupler", "right_driver", "right_follower", "right_spring_link")
+    q = np.linspace(0.0, 0.76, 9)
+    tips = fk.pad_tips_tcp(names, [[0.0, a, -0.96 * a, a] * 2 for a in q])
+    opening = 2 * np.abs(tips[:, :, 1]).min(axis=1)
+    np.testing.assert_allclose(hand_geometry.pad_tip_z_m(opening), tips[:, :, 2].max(axis=1), atol=3e-4)
+    table = hand_geometry.closed_pad_tips_tcp(opening)
+    np.testing.assert_allclose(table[:, :, 2].max(axis=1), tips[:, :, 2].max(axis=1), atol=3e-4)
+    np.testing.assert_allclose(np.abs(table[:, :, 1]).min(axis=1), opening / 2)

@@ -69,6 +69,26 @@ def test_candidates_at_rest_approach_from_above_and_clear_the_table(box, box_res
     np.testing.assert_array_equal(pose, pose2)
 
 
+def test_candidates_at_rest_keep_the_closed_fingers_above_the_table():
+    """Closing moves the pad tips up to 13.5 mm past the open hand's: on a flat box the
+    open-hand check alone lets some candidates close a pad onto the table."""
+    flat = procedural_object("box", (0.03, 0.06, 0.10), mass_kg=0.3)
+    rest = find_resting_poses(flat)
+    pts = hand_collision.surface_points(flat.collision_mesh())
+
+    def lowest_closed_tip_z(settings):
+        X, pose = sample_grasp_candidates_at_rest(flat.collision_mesh(), rest, 48, 3, settings)
+        assert len(X) == 48
+        opening = hand_collision.closing_opening_m(X, pts, np.full(len(X), 0.085))
+        assert (opening > 0.05).mean() > 0.5  # mostly across the 60 mm side, not the 30 mm height
+        return hand_collision.closed_tips_lowest_z(rest.X_table_object[pose] @ X, opening)
+
+    checked = lowest_closed_tip_z(RESTING)
+    unchecked = lowest_closed_tip_z(SamplingSettings(sampler="resting", closed_tips_above_table=False))
+    # (the sampler judges the opening before the depth and tilt: within a millimetre)
+    assert checked.min() > -0.001 and (unchecked < -0.001).sum() >= 2
+
+
 def test_resting_candidates_survive_the_table_more_often_than_free_ones(box, box_rest):
     """Why the resting sampler exists: the same number of candidates, every one judged
     in every resting pose (weighted by probability), as a scene projects a table."""

@@ -54,6 +54,10 @@ class SamplingSettings:
     rest_min_probability: float = 0.01 # resting poses rarer than this are not sampled
     approach_cone_deg: float = 80.0    # at rest: approach within this of straight down (executor's cone)
     table_clearance_m: float = 0.002   # at rest: open hand at least this far above the table
+    # at rest: the pad tips, closed to where they will stop on the object, above the table
+    # too (closing reaches up to 13.5 mm past the open hand; a pad that closes onto the
+    # table presses into it and blocks the lift). Tables grown before it existed lack it.
+    closed_tips_above_table: bool = True
 
 
 def _rotation_about(axis, angle):
@@ -199,15 +203,21 @@ def _sample(mesh, count, seed, settings, rest):
         # deepest insertion at which the open hand (with its approach) is free
         free = ~hand_collision.collides_along_approach(X, obstacles, depths, approach_m=settings.approach_m,
                                                        margin_m=settings.clearance_m)
+        closed_check = rest is not None and settings.closed_tips_above_table
+        # where the pads will stop: the object's extent between them (else the contacts' distance)
+        opening = (hand_collision.closing_opening_m(X, obstacles, np.linalg.norm(a - b, axis=1)) if closed_check
+                   else np.zeros(len(X)))
         if rest is not None:
             X_rest = rest.X_table_object[pose] @ X
             low = hand_collision.lowest_point_z(X_rest, settings.approach_m, settings.table_clearance_m)
+            if closed_check:
+                low = np.minimum(low, hand_collision.closed_tips_lowest_z(X_rest, opening))
             free &= low[:, None] + depths[None, :] * X_rest[:, 2, 2][:, None] >= 0.0
         # contiguous free prefix: the hand cannot pass through a collision
         prefix = np.cumprod(free, axis=1).astype(bool)
         n_free = prefix.sum(axis=1)
         usable = n_free > 0
-        X, n_free, pose = X[usable], n_free[usable], pose[usable]
+        X, n_free, pose, opening = X[usable], n_free[usable], pose[usable], opening[usable]
         if not len(X):
             continue
         deepest = depths[n_free - 1]
@@ -223,11 +233,18 @@ def _sample(mesh, count, seed, settings, rest):
                          -2.5 * settings.tilt_sigma_rad, 2.5 * settings.tilt_sigma_rad)
         for i in range(len(X)):
             X[i, :3, :3] = _rotation_about(axes[i], angles[i]) @ X[i, :3, :3]
+        if closed_check:
+            # the tilt may have lowered a pad tip below the table: back off along the approach
+            X_rest = rest.X_table_object[pose] @ X
+            below = np.maximum(0.0, -hand_collision.closed_tips_lowest_z(X_rest, opening))
+            X[:, :3, 3] -= (below / np.maximum(-X_rest[:, 2, 2], 1e-6))[:, None] * X[:, :3, 2]
         ok = ~hand_collision.collides(X, obstacles, approach_m=settings.approach_m,
                                       margin_m=settings.clearance_m)
         if rest is not None:
             X_rest = rest.X_table_object[pose] @ X
             ok &= hand_collision.lowest_point_z(X_rest, settings.approach_m, settings.table_clearance_m) >= 0.0
+            if closed_check:
+                ok &= hand_collision.closed_tips_lowest_z(X_rest, opening) >= 0.0
             ok &= -X_rest[:, 2, 2] >= np.cos(cone)   # still inside the cone after the tilt
             # at most each pose's remaining quota, in sampling order
             rank = np.zeros(len(pose), int)
