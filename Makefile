@@ -20,7 +20,7 @@ help:
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (~8 h; nohup; resumable)"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
-	@echo "make data-report   - summary of the committed v2 grasp tables and out/scenes_v2"
+	@echo "make data-report   - summary of the committed v2 grasp tables and SCENES_OUT (out/scenes_v3)"
 	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
@@ -96,6 +96,10 @@ benchmark-procedural: setup
 # The tables are committed (models/grasp_tables_v2); scenes are regenerated from the seed.
 GRASPS ?= 64
 SCENES ?= 5000
+# out/scenes_v2: the 128-candidate tables without the execution check (the shipped v2
+# models learned from it); out/scenes_v3: the grown tables, labels checked where the robot
+# executes them (sim_bridge README, *Dataset v2*). The pool is pinned per directory.
+SCENES_OUT ?= out/scenes_v3
 WORKERS ?= 2
 PROCEDURAL ?= 100
 # v2's objects: the first 220 of the round-robin order (all 100 procedural, 120 VGN meshes;
@@ -112,10 +116,10 @@ data-objects: setup
 
 data-scenes: setup
 	@$(ROS) ros2 run sim_bridge datagen scenes --objects models/grasp_tables_v2 --meshes ../shared/meshes/vgn_train \
-	  --scenes $(SCENES) --seed 0 --out out/scenes_v2 --workers $(WORKERS)
+	  --scenes $(SCENES) --seed 0 --out $(SCENES_OUT) --workers $(WORKERS)
 
 data-report: setup
-	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v2 --scenes out/scenes_v2
+	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v2 --scenes $(SCENES_OUT)
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
