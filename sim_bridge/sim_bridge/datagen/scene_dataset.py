@@ -172,7 +172,8 @@ def _run_scene(task):
         others = np.concatenate(obstacles) if obstacles else None
         free = ~hand_collision.collides(X, others, table_z_m=TABLE_HEIGHT_M, approach_m=task.approach_m)
         if task.execution_check:
-            executed = executable(X, t, rows, others, task.approach_m) & free
+            executed = free.copy()
+            executed[free] = executable(X[free], t, rows[free], others, task.approach_m)
             n_dropped_executed += int(free.sum() - executed.sum())
             free = executed
         collides_all.append(X[~free])
@@ -226,7 +227,10 @@ def executable(X_task_tcp, table, rows, obstacles, approach_m):
     X = at_voxel_centres(X_task_tcp)
     ok = ~hand_collision.collides(X, obstacles, table_z_m=TABLE_HEIGHT_M, approach_m=approach_m)
     if len(rows):
-        tips = _finger_kinematics().pad_tips_tcp(table["finger_joint_names"], table["finger_joint_angles"][rows])
+        # symmetry copies share their row's fingers: the linkage once per row
+        unique_rows, of_row = np.unique(rows, return_inverse=True)
+        tips = _finger_kinematics().pad_tips_tcp(table["finger_joint_names"],
+                                                 table["finger_joint_angles"][unique_rows])[of_row]
         tip_z = np.einsum("nj,nkj->nk", X[:, 2, :3], tips) + X[:, 2, 3][:, None]
         ok &= tip_z.min(axis=1) >= TABLE_HEIGHT_M
     return ok
