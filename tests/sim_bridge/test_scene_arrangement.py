@@ -2,9 +2,11 @@
 
 import numpy as np
 import pytest
+import trimesh
 
 from sim_bridge.physics.objects import procedural_object
-from sim_bridge.physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M, arrange
+from sim_bridge.physics.scenes import (TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange, footprint,
+                                       packed_poses, polygons_apart)
 
 pytestmark = pytest.mark.drake
 
@@ -46,3 +48,27 @@ def test_pile_settles_inside_the_workspace_and_is_deterministic():
     keep2, poses2 = arrange(objs, "pile", np.random.default_rng(2))
     assert keep2 == keep
     np.testing.assert_array_equal(np.array(poses2), np.array(poses))
+
+
+def test_packed_footprints_are_polygons_so_long_objects_lying_down_fit():
+    """Bounding circles made a 14 cm bar a 14 cm disc: at most two fit the 26 cm table
+    area. With their footprints (convex hulls seen from above) three or more do, apart."""
+    bar = trimesh.creation.box((0.14, 0.03, 0.03))
+    settings = SceneSettings()
+    poses = packed_poses([bar] * 4, np.random.default_rng(0), settings)
+    placed = [X for X in poses if X is not None]
+    assert len(placed) >= 3
+    feet = [footprint((bar.vertices @ X[:3, :3].T + X[:3, 3])[:, :2]) for X in placed]
+    for k, a in enumerate(feet):
+        assert a.min() >= settings.margin_m - 1e-9 and a.max() <= VOLUME_SIZE_M - settings.margin_m + 1e-9
+        for b in feet[k + 1:]:
+            assert polygons_apart(a, b, settings.packed_gap_m)
+
+
+def test_polygons_apart_reads_overlap_and_gaps():
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float) * 0.02
+    assert polygons_apart(square, square + [0.025, 0.0], 0.005)        # 5 mm apart
+    assert not polygons_apart(square, square + [0.024, 0.0], 0.005)    # 4 mm: too close
+    assert not polygons_apart(square, square + [0.01, 0.01], 0.0)      # overlapping
+    diamond = np.array([[0.0, -1], [1, 0], [0, 1], [-1, 0]]) * 0.01 + [0.04, 0.01]
+    assert polygons_apart(square, diamond, 0.005) and not polygons_apart(square, diamond, 0.015)

@@ -307,9 +307,10 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
                     symmetry=bool(symmetry), mirrors=bool(symmetry and mirrors),
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
-                    object_pool_size=len(names))
-    if execution_check:  # only when on: directories made before it existed resume without it
-        manifest["execution_check"] = True
+                    object_pool_size=len(names), execution_check=bool(execution_check),
+                    packed_footprints=True)
+    # (out/scenes_v2's manifest has neither of the last two: it was made with bounding
+    # circles for packing and cannot be resumed by this generator)
     mpath = store.dir / "manifest.json"
     if mpath.exists():
         old = json.loads(mpath.read_text())

@@ -146,9 +146,12 @@ def _pose(R, p):
 
 def packed_poses(meshes, rng, settings=SceneSettings(), rest=None):
     """Non-overlapping placements on the table: list of 4x4 or None (no room).
-    rest: per mesh a resting_poses.RestingPoses (one is drawn) or None (upright)."""
+    rest: per mesh a resting_poses.RestingPoses (one is drawn) or None (upright).
+    Footprints are the convex hulls of the posed meshes seen from above, kept
+    settings.packed_gap_m apart (bounding circles, used before, left a 15 cm bottle lying
+    on its side a 15 cm disc, and packed scenes kept 3 of 5 objects on average)."""
     lo, hi = settings.margin_m, VOLUME_SIZE_M - settings.margin_m
-    placed = []  # (xy, radius)
+    placed = []  # footprints (K, 2) on the table
     out = []
     for k, mesh in enumerate(meshes):
         pose = None
@@ -157,18 +160,37 @@ def packed_poses(meshes, rng, settings=SceneSettings(), rest=None):
         for _ in range(50):
             R = _yaw(rng.uniform(0, 2 * np.pi)) @ R_rest
             v = mesh.vertices @ R.T
-            center_xy = (v[:, :2].max(0) + v[:, :2].min(0)) / 2
-            radius = np.linalg.norm(v[:, :2] - center_xy, axis=1).max()
-            if 2 * radius > hi - lo:
-                break
-            xy = rng.uniform(lo + radius, hi - radius, 2)
-            if all(np.linalg.norm(xy - q) >= radius + r + settings.packed_gap_m for q, r in placed):
-                placed.append((xy, radius))
-                p = np.r_[xy - center_xy, TABLE_HEIGHT_M - v[:, 2].min() + 0.001]
-                pose = _pose(R, p)
+            foot = footprint(v[:, :2])
+            low, high = lo - foot.min(0), hi - foot.max(0)  # where the footprint's origin may go
+            if np.any(low > high):
+                continue  # does not fit the table at this yaw
+            xy = rng.uniform(low, high)
+            if all(polygons_apart(foot + xy, other, settings.packed_gap_m) for other in placed):
+                placed.append(foot + xy)
+                pose = _pose(R, np.r_[xy, TABLE_HEIGHT_M - v[:, 2].min() + 0.001])
                 break
         out.append(pose)
     return out
+
+
+def footprint(points_xy) -> np.ndarray:
+    """(K, 2) convex hull of points on the table plane, counter-clockwise."""
+    from scipy.spatial import ConvexHull  # lazy: only packing needs it
+    return points_xy[ConvexHull(points_xy).vertices]
+
+
+def polygons_apart(a, b, gap_m) -> bool:
+    """Are convex polygons a, b (K, 2) at least gap_m apart along one of their edge
+    normals? (Separating axes: exact for overlap; a gap across a corner-to-corner
+    direction may be under-read, which only refuses a placement.)"""
+    for poly in (a, b):
+        edges = np.roll(poly, -1, axis=0) - poly
+        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        pa, pb = a @ normals.T, b @ normals.T
+        if np.any((pb.min(0) - pa.max(0) >= gap_m) | (pa.min(0) - pb.max(0) >= gap_m)):
+            return True
+    return False
 
 
 def pile_poses(meshes, rng, settings=SceneSettings()):
