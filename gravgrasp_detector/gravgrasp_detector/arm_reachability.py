@@ -11,8 +11,8 @@ either closes the fingers on the same two sides.
 Frames: `X_task_base` places the robot's base frame (the description's world) in the
 gravity-aligned task frame. The tool flange is the description's `attachment_site`
 (wrist_3 + (0, 0.1, 0), z out of the flange; Drake ignores MJCF sites, so it is
-rebuilt here) and the TCP sits `tcp_offset_m` along flange z (2F-85 on a UR coupling:
-base-to-pinch-point ~0.15 m, plus the coupling).
+rebuilt here) and the TCP sits `tcp_offset_m` along flange z (2F-85 without a spacer:
+the pinch point 0.1558 m out, robotiq_driver.hand_geometry.FLANGE_TO_TCP_M).
 """
 from __future__ import annotations
 
@@ -30,7 +30,9 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import FixedOffsetFrame
 from pydrake.solvers import Solve
 
-DEFAULT_TCP_OFFSET_M = 0.174
+from robotiq_driver.hand_geometry import FLANGE_TO_TCP_M
+
+DEFAULT_TCP_OFFSET_M = FLANGE_TO_TCP_M
 TWIN = np.diag([-1.0, -1.0, 1.0])  # 180 deg about the TCP z axis
 
 

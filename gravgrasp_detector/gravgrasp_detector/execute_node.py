@@ -27,7 +27,7 @@ from gravgrasp_msgs.msg import GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
-from .arm_reachability import ArmReachability
+from .arm_reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
 from .grasp_execution import (Abort, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome, ResultCode,
                               pose_to_matrix)
 from .ros_interface import described, pose_msg_from_matrix, run_node
@@ -101,7 +101,7 @@ class ExecuteNode(Node):
         base = param("arm_base_xyz_yaw", [0.15, -0.45, 0.0, 0.0],
                      "arm base pose in the task frame: x, y, z [m], yaw [rad] (UR5e kinematic model)")
         self.check_ik = param("check_ik", True, "check reachability with the arm's kinematic model")
-        tcp_offset = param("tcp_offset_m", 0.174, "tool flange -> TCP distance along the flange z [m]")
+        tcp_offset = param("tcp_offset_m", DEFAULT_TCP_OFFSET_M, "tool flange -> TCP distance along the flange z [m]")
         defaults = ExecutionLimits()
         limits = ExecutionLimits(
             workspace_min_m=tuple(param("workspace_min_m", list(defaults.workspace_min_m), "TCP box min, task frame [m]")),
@@ -126,6 +126,10 @@ class ExecuteNode(Node):
                              "opening where this gripper's fingers stop closing on nothing [m], as measured "
                              "with gripper_cli calibrate; negative: measure it on every connection")
         limits.empty_closed_width_m = None if empty_closed < 0 else float(empty_closed)
+        limits.table_z_m = float(param(
+            "table_z_m", 0.0, "table top in the task frame [m] (the task frame's origin is on the table): refuse "
+                              "grasps whose closing fingers would reach below it; set it far below the "
+                              "workspace (e.g. -1.0) to turn the check off"))
         self.max_tsdf_age_s = param("max_tsdf_age_s", 5.0,
                                     "refuse a grasp (STALE_SCENE) when the latest TSDF is older than this [s] "
                                     "or none arrived; 0: no TSDF needed (no collision check without one)")

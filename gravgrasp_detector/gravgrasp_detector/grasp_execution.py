@@ -11,6 +11,8 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
   IK         pre-grasp, grasp, lift reachable by the arm model   UNREACHABLE
   collision  open hand at pre-grasp, along the approach and at
              the grasp, against the latest TSDF                   IN_COLLISION
+  table      the pad tips of the fingers closed at the grasp stay
+             above the table top (limits.table_z_m)              IN_COLLISION
   fresh view the latest TSDF is recent (node: max_tsdf_age_s)    STALE_SCENE
   connect    activate                                            GRIPPER_FAULT
   open; once per connection: move to the pre-grasp raised by the
@@ -97,6 +99,9 @@ class ExecutionLimits:
     # Where the fingers close on nothing, if measured before (m); None: measure it on
     # every connection (open, close on nothing at the grip's speed and force, open).
     empty_closed_width_m: float | None = None
+    # Table top in the task frame (m): refuse grasps whose closing fingers would reach
+    # below it (the labels' check). None: no table check.
+    table_z_m: float | None = None
 
 
 class ArmTimeout(Exception):
@@ -146,6 +151,16 @@ def check_limits(poses, limits: ExecutionLimits) -> None:
         raise Abort(ResultCode.UNREACHABLE,
                     f"approach is {angle:.0f} deg from straight down, beyond the {limits.approach_cone_deg:.0f} deg "
                     "cone (parameter approach_cone_deg)")
+
+
+def scene_collision(poses, tsdf, limits: ExecutionLimits) -> str:
+    """'' if the open hand clears the TSDF at the pre-grasp, along the approach and at the
+    grasp (`tsdf`: (grid, voxel_size_m, origin), or None: unchecked), and the closing
+    fingertips stay above the table (limits.table_z_m); otherwise why not."""
+    hit = hand_clearance.first_collision(poses, tsdf) if tsdf is not None else ""
+    if not hit and limits.table_z_m is not None:
+        hit = hand_clearance.closed_tips_below_table(poses["grasp"], tsdf, limits.table_z_m)
+    return hit
 
 
 class GraspExecutor:
@@ -216,10 +231,9 @@ class GraspExecutor:
             reach = self.reachability.check(poses)
             if not reach.reachable:
                 raise Abort(ResultCode.UNREACHABLE, reach.message)
-        if tsdf is not None:
-            hit = hand_clearance.first_collision(poses, tsdf)
-            if hit:
-                raise Abort(ResultCode.IN_COLLISION, hit)
+        hit = scene_collision(poses, tsdf, lim)
+        if hit:
+            raise Abort(ResultCode.IN_COLLISION, hit)
         self._require_armed("open the gripper")
         gripper = self._gripper()
         self._grip(gripper, 0.085, "opening")

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from robotiq_driver.hand_geometry import HAND_PARTS, OPEN_HAND_BOXES_TCP, swept_boxes
+from robotiq_driver.hand_geometry import (HAND_PARTS, OPEN_HAND_BOXES_TCP, closed_tips_lowest_z, closing_opening_m,
+                                          swept_boxes)
 
 # Voxels with values below this are "behind a surface". A little under 0.5 so that
 # voxels whose centre sits right on the surface do not count as collisions.
@@ -55,3 +56,24 @@ def first_collision(poses: dict, tsdf) -> str:
             return (f"the open hand collides with the scene at the {name} (occupied TSDF voxels "
                     f"inside the {where}): pick another grasp")
     return ""
+
+
+def closed_tips_below_table(X_grasp: np.ndarray, tsdf, table_z_m: float) -> str:
+    """'' if the pad tips stay above the table top `table_z_m` (task frame) once the
+    fingers close at this grasp; otherwise a sentence saying how far they would press
+    into it. Closing swings the tips up to 13.5 mm further along the approach, more the
+    less there is between the pads (hand_geometry.pad_tip_z_m); the pads stop at the
+    extent of the occupied voxels between them, above the table. None seen (no `tsdf`,
+    or the object hidden from the camera): they close fully, the deepest case."""
+    points = np.zeros((0, 3))
+    if tsdf is not None:
+        grid, voxel_size_m, origin = tsdf
+        points = occupied_points(grid, voxel_size_m, origin)
+        points = points[points[:, 2] > table_z_m + voxel_size_m]  # the table's own voxels stop nothing
+    opening = closing_opening_m(X_grasp, points, [0.0])
+    low = float(closed_tips_lowest_z(X_grasp, opening)[0])
+    if low >= table_z_m:
+        return ""
+    return (f"closing would press a fingertip {1000 * (table_z_m - low):.0f} mm into the table: the pads stop "
+            f"at a {1000 * opening[0]:.0f} mm opening (what the TSDF shows between them) with their tips at "
+            f"z = {low:.3f} m, below the table top at {table_z_m:.3f} m (parameter table_z_m): pick another grasp")

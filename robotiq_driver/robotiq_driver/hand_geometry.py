@@ -97,3 +97,35 @@ def closed_pad_tips_tcp(opening_m) -> np.ndarray:
     tips[:, :, 1] = side * (w[:, None] / 2 + inner)
     tips[:, :, 2] = pad_tip_z_m(w)[:, None]
     return tips
+
+
+def lowest_z_m(X_task_tcp, points_tcp) -> np.ndarray:
+    """(N,) task-frame height [m] of the lowest of the points `points_tcp`, given in the
+    TCP frame ((K, 3) for every pose, or (N, K, 3) per pose), at each pose (N, 4, 4)."""
+    X = np.asarray(X_task_tcp, dtype=float).reshape(-1, 4, 4)
+    P = np.broadcast_to(np.asarray(points_tcp, dtype=float), (len(X),) + np.shape(points_tcp)[-2:])
+    return (np.einsum("nj,nkj->nk", X[:, 2, :3], P) + X[:, 2, 3][:, None]).min(axis=1)
+
+
+def closed_tips_lowest_z(X_task_tcp, opening_m) -> np.ndarray:
+    """(N,) task-frame height [m] of the lowest pad tip with the fingers closed to
+    `opening_m` (N,) at each pose: closing reaches up to 13.5 mm further along the
+    approach than the open hand."""
+    return lowest_z_m(X_task_tcp, closed_pad_tips_tcp(opening_m))
+
+
+def closing_opening_m(X_task_tcp, points_task, fallback_m) -> np.ndarray:
+    """(N,) opening [m] at which the pads will stop: the extent, along the closing axis,
+    of the points (M, 3) between the pads (inside the stroke, across the pad width, along
+    the pads' reach from open to closed). `fallback_m` (N,) where none are."""
+    X = np.asarray(X_task_tcp, dtype=float).reshape(-1, 4, 4)
+    P = np.asarray(points_task, dtype=float).reshape(-1, 3)
+    out = np.array(fallback_m, dtype=float).reshape(-1).copy()
+    half_x, half_y = PAD_WIDTH_M / 2, MAX_STROKE_M / 2
+    z_lo, z_hi = OPEN_HAND_BOXES_TCP[-1][0][2], pad_tip_z_m(0.0)
+    for k in range(len(X)):
+        q = (P - X[k, :3, 3]) @ X[k, :3, :3]
+        between = (np.abs(q[:, 0]) <= half_x) & (np.abs(q[:, 1]) <= half_y) & (q[:, 2] >= z_lo) & (q[:, 2] <= z_hi)
+        if between.any():
+            out[k] = np.ptp(q[between, 1])
+    return out

@@ -255,6 +255,32 @@ def test_hand_colliding_with_the_tsdf_is_in_collision(gripper_port):
     assert ex.execute(grasp(), tsdf=(between, voxel, np.zeros(3))).code == ge.ResultCode.SUCCESS
 
 
+def test_closing_fingertips_below_the_table_are_refused(gripper_port):
+    """The labels' check at execution: closing swings the pad tips up to 18 mm past the
+    TCP, less the wider the object between the pads (seen in the TSDF) stops them."""
+    ex, arm = make_executor(gripper_port, table_z_m=0.05)
+    voxel = 0.0075
+    table = np.zeros((40, 40, 40), np.float32)
+    table[:, :, :int(0.05 / voxel) + 1] = 0.3  # the table top: occupied, stops no finger
+
+    def with_object(width_m):
+        grid = table.copy()
+        j0, j1 = round((0.15 - width_m / 2) / voxel), round((0.15 + width_m / 2) / voxel)
+        grid[18:22, j0:j1, int(0.05 / voxel):int(0.09 / voxel)] = 0.3
+        return grid, voxel, np.zeros(3)
+
+    low = grasp(z=0.062)  # TCP 12 mm above the table
+    narrow = ex.execute(low, tsdf=with_object(0.015))
+    assert narrow.code == ge.ResultCode.IN_COLLISION and "into the table" in narrow.message, narrow.message
+    assert "table_z_m" in narrow.message and arm.targets == []
+    # nothing seen between the pads: they may close fully, the deepest case
+    assert ex.execute(low, tsdf=None).code == ge.ResultCode.IN_COLLISION
+    # an object that stops the pads 7 cm apart keeps their tips 3 mm above the table
+    assert ex.execute(low, tsdf=with_object(0.08)).code == ge.ResultCode.SUCCESS
+    # higher up, the narrow object is fine too
+    assert ex.execute(grasp(z=0.075), tsdf=with_object(0.015)).code == ge.ResultCode.SUCCESS
+
+
 def test_second_concurrent_call_is_busy_at_once(gripper_port):
     ex, arm = make_executor(gripper_port)
     arm.gate = threading.Event()

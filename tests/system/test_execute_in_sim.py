@@ -46,7 +46,8 @@ def world(tmp_path_factory):
     # ... and the fingers too (the calibration's close timed out at 5 s under load).
     procs.append(RosProcess("gravgrasp_detector", "execute", params={"gripper_port": link, "arm_timeout_s": 120.0,
                                                                      "gripper_timeout_s": 60.0,
-                                                                     "gripper_reply_timeout_s": 0.5},
+                                                                     "gripper_reply_timeout_s": 0.5,
+                                                                     "table_z_m": 0.05},  # the sim's table top
                             log_dir=tmp))
     procs[-1].wait_for_output("execute ready", timeout_s=60)
     rclpy.init()

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from gravgrasp_detector import hand_clearance
-from gravgrasp_detector.grasp_execution import Abort, ExecutionLimits, GraspExecutor, check_limits, plan_poses
+from gravgrasp_detector.grasp_execution import (Abort, ExecutionLimits, GraspExecutor, check_limits, plan_poses,
+                                                scene_collision)
 from robotiq_driver.gripper_client import GripperTimeout
 from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus
 
 from ..datagen.object_sources import ObjectSource
 from ..physics.contact import SimSettings
+from ..physics.scenes import TABLE_HEIGHT_M
 from ..world import STROKE_M, SceneConfig, SimWorld, WorldSettings
 from .clearing import Refused
 from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
@@ -84,10 +85,10 @@ class SimCell:
         self.world = SimWorld(SceneConfig(objects=objects, object_mass_kg=mass_kg,
                                           arrangement=scene["arrangement"]), settings)
         self.protocol, self.volume, self._detect = protocol, volume, detect
-        # The executor's limits are the ROS node's defaults but the free-space speed;
-        # grip force per the paper.
+        # The executor's limits are the ROS node's defaults but the free-space speed and
+        # the sim's table top; grip force per the paper.
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
-                                      max_speed_mps=protocol.free_space_speed_mps)
+                                      max_speed_mps=protocol.free_space_speed_mps, table_z_m=TABLE_HEIGHT_M)
         self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
                                       reachability=None, log=lambda *_: None)
         self.home = self.world.tcp_pose()
@@ -144,7 +145,7 @@ class SimCell:
             ok, message = self.world.check_reachable(X)
             if not ok:
                 return message
-        return hand_clearance.first_collision(poses, tsdf)
+        return scene_collision(poses, tsdf, self.limits)
 
     def execute(self, grasp, tsdf) -> dict:
         """Run the grasp, hold, shake, judge by ground truth, remove what was lifted,

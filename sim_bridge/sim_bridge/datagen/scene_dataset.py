@@ -231,8 +231,7 @@ def executable(X_task_tcp, table, rows, obstacles, approach_m):
         unique_rows, of_row = np.unique(rows, return_inverse=True)
         tips = _finger_kinematics().pad_tips_tcp(table["finger_joint_names"],
                                                  table["finger_joint_angles"][unique_rows])[of_row]
-        tip_z = np.einsum("nj,nkj->nk", X[:, 2, :3], tips) + X[:, 2, 3][:, None]
-        ok &= tip_z.min(axis=1) >= TABLE_HEIGHT_M
+        ok &= hand_collision.lowest_z_m(X, tips) >= TABLE_HEIGHT_M
     return ok
 
 

@@ -16,6 +16,12 @@ from ..physics.scenes import VOLUME_SIZE_M
 RESOLUTION = 40
 
 
+def voxel_index(points_task, size_m=VOLUME_SIZE_M, resolution=RESOLUTION):
+    """(N, 3) int64: the voxel (i, j, k) that contains each task-frame point (N, 3); may
+    lie outside [0, resolution)."""
+    return np.floor(np.asarray(points_task, dtype=float) / (size_m / resolution)).astype(np.int64)
+
+
 def voxel_labels(X_task_tcp, scores_g, size_m=VOLUME_SIZE_M, resolution=RESOLUTION):
     """Best grasp per voxel.
 
@@ -27,8 +33,7 @@ def voxel_labels(X_task_tcp, scores_g, size_m=VOLUME_SIZE_M, resolution=RESOLUTI
     """
     X = np.asarray(X_task_tcp, dtype=float).reshape(-1, 4, 4)
     f = np.asarray(scores_g, dtype=float).reshape(-1)
-    voxel = size_m / resolution
-    ijk = np.floor(X[:, :3, 3] / voxel).astype(np.int64)
+    ijk = voxel_index(X[:, :3, 3], size_m, resolution)
     ok = np.isfinite(f) & ((ijk >= 0) & (ijk < resolution)).all(axis=1)
     rows = np.flatnonzero(ok)
     flat = np.ravel_multi_index(ijk[rows].T, (resolution,) * 3) if len(rows) else np.zeros(0, np.int64)
@@ -52,8 +57,7 @@ def at_voxel_centres(X_task_tcp, size_m=VOLUME_SIZE_M, resolution=RESOLUTION):
     rotation. That is the pose detection publishes for the voxel this grasp labels, so
     the pose the robot executes: up to half a voxel off the simulated one on each axis."""
     X = np.array(X_task_tcp, dtype=float).reshape(-1, 4, 4)
-    voxel = size_m / resolution
-    X[:, :3, 3] = (np.floor(X[:, :3, 3] / voxel) + 0.5) * voxel
+    X[:, :3, 3] = (voxel_index(X[:, :3, 3], size_m, resolution) + 0.5) * (size_m / resolution)
     return X
 
 

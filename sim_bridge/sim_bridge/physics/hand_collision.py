@@ -15,8 +15,8 @@ import trimesh
 
 # The open-hand boxes are shared with the executor's TSDF check (one source).
 from robotiq_driver.hand_geometry import (  # noqa: F401  (re-exported)
-    FINGER_TIP_Z_M, MAX_STROKE_M, OPEN_HAND_BOXES_TCP, PAD_WIDTH_M, PALM_FACE_Z_M, closed_pad_tips_tcp, pad_tip_z_m,
-    swept_boxes as _swept_boxes)
+    FINGER_TIP_Z_M, MAX_STROKE_M, OPEN_HAND_BOXES_TCP, PAD_WIDTH_M, PALM_FACE_Z_M, closed_pad_tips_tcp,
+    closed_tips_lowest_z, closing_opening_m, lowest_z_m, pad_tip_z_m, swept_boxes as _swept_boxes)
 
 POINT_SPACING_M = 0.003     # surface sampling: well below the thinnest box (20 mm)
 
@@ -74,33 +74,7 @@ def lowest_point_z(X_world_tcp, approach_m=0.0, margin_m=0.0):
     # 8 corners of every box: a convex box is above a plane iff all its corners are
     corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(-1, 3)
     pts = np.where(corners[None, :, :] == 0, boxes[:, None, 0, :], boxes[:, None, 1, :]).reshape(-1, 3)
-    return (np.einsum("nj,mj->nm", X[:, 2, :3], pts) + X[:, 2, 3][:, None]).min(axis=1)
-
-
-def closed_tips_lowest_z(X_world_tcp, opening_m):
-    """(N,) world height of the lowest pad tip with the fingers closed to `opening_m`
-    (N,) at each pose: closing reaches up to 13.5 mm further along the approach than the
-    open hand (hand_geometry.pad_tip_z_m)."""
-    X = np.asarray(X_world_tcp, dtype=float).reshape(-1, 4, 4)
-    tips = closed_pad_tips_tcp(opening_m)
-    return (np.einsum("nj,nkj->nk", X[:, 2, :3], tips) + X[:, 2, 3][:, None]).min(axis=1)
-
-
-def closing_opening_m(X_world_tcp, points_world, fallback_m):
-    """(N,) opening [m] at which the pads will stop: the extent, along the closing axis,
-    of the object's surface points between the pads (inside the stroke, across the pad
-    width, along the pads' reach from open to closed). `fallback_m` (N,) where none are."""
-    X = np.asarray(X_world_tcp, dtype=float).reshape(-1, 4, 4)
-    P = np.asarray(points_world, dtype=float)
-    out = np.array(fallback_m, dtype=float).reshape(-1).copy()
-    half_x, half_y = PAD_WIDTH_M / 2, MAX_STROKE_M / 2
-    z_lo, z_hi = OPEN_HAND_BOXES_TCP[-1][0][2], pad_tip_z_m(0.0)
-    for k in range(len(X)):
-        q = (P - X[k, :3, 3]) @ X[k, :3, :3]
-        between = (np.abs(q[:, 0]) <= half_x) & (np.abs(q[:, 1]) <= half_y) & (q[:, 2] >= z_lo) & (q[:, 2] <= z_hi)
-        if between.any():
-            out[k] = np.ptp(q[between, 1])
-    return out
+    return lowest_z_m(X, pts)
 
 
 def collides_along_approach(X_world_tcp, points_world, offsets_m, approach_m=0.0, margin_m=0.0):

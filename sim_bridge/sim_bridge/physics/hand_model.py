@@ -42,7 +42,7 @@ import trimesh
 # against this model by tests/sim_bridge/test_hand_model.py.
 from robotiq_driver.hand_geometry import (  # noqa: E402,F401  (re-exported)
     BODY_HALF_EXTENTS_M, FINGER_HALF_WIDTH_X_M, FINGER_LENGTH_M, FLANGE_TO_PALM_M, FLANGE_TO_TCP_M,
-    FINGER_TIP_Z_M, MAX_STROKE_M, PAD_LENGTH_M, PAD_WIDTH_M, PALM_TO_TCP_M)
+    FINGER_TIP_Z_M, MAX_STROKE_M, PAD_BACK_M, PAD_LENGTH_M, PAD_WIDTH_M, PALM_TO_TCP_M)
 
 # Driver joint travel: 0 = open, 0.8 rad = closed (Menagerie).
 DRIVER_OPEN_RAD = 0.0
@@ -257,9 +257,11 @@ def add_hand(plant, scene_graph, proximity_properties, X_W_flange=None, floating
 
 
 # Tip edge of each pad's collision boxes (Menagerie pad_box1/2) in the pad frame: x
-# across the pad, y from the inner (gripping) face -6.6 mm to the back +1.4 mm, at the
-# tip z = 37.5 mm.
-PAD_TIP_CORNERS_PAD_M = np.array([[x, y, 0.0375] for x in (-0.011, 0.011) for y in (-0.0066, 0.0014)])
+# across the pad, y from the inner (gripping) face at -6.6 mm to the pad's back, at the
+# tip z = the pad's length.
+PAD_FACE_Y_PAD_M = -0.0066
+PAD_TIP_CORNERS_PAD_M = np.array([[x, y, PAD_LENGTH_M] for x in (-PAD_WIDTH_M / 2, PAD_WIDTH_M / 2)
+                                  for y in (PAD_FACE_Y_PAD_M, PAD_FACE_Y_PAD_M + PAD_BACK_M)])
 
 
 class FingerKinematics:
