@@ -32,6 +32,28 @@ def test_approach_sweep_catches_what_the_fingers_pass_through():
     assert hand_collision.collides(X, beside_links, approach_m=0.06)[0]
 
 
+@pytest.mark.parametrize("approach_m, margin_m", [(0.0, 0.0), (0.05, 0.002)])
+def test_the_indexed_check_finds_exactly_the_points_inside_any_box(approach_m, margin_m):
+    """collides queries a k-d tree piece by piece; it must agree with testing every point
+    against every box of the swept hand, near the boundary too."""
+    rng = np.random.default_rng(3)
+    box = trimesh.creation.box((0.05, 0.07, 0.12))
+    box.apply_translation([0.15, 0.15, 0.11])
+    pts = hand_collision.surface_points(box)
+    X = np.repeat(top_down([0.15, 0.15, 0.15])[None], 600, axis=0)
+    X[:, :3, 3] += rng.normal(0, 0.04, (600, 3))
+    for i in range(len(X)):  # random tilts up to ~45 deg
+        axis = rng.normal(size=3)
+        X[i, :3, :3] = trimesh.transformations.rotation_matrix(rng.uniform(0, 0.8), axis)[:3, :3] @ X[i, :3, :3]
+    boxes = hand_collision._swept_boxes(approach_m)
+    lo, hi = boxes[:, 0] - margin_m, boxes[:, 1] + margin_m
+    q = np.einsum("nij,nmi->nmj", X[:, :3, :3], pts[None] - X[:, None, :3, 3])  # (N, M, 3) TCP frame
+    brute = ((q[:, :, None] >= lo) & (q[:, :, None] <= hi)).all(-1).any((1, 2))
+    fast = hand_collision.collides(X, pts, approach_m=approach_m, margin_m=margin_m)
+    assert 0.2 < brute.mean() < 0.95  # both outcomes well represented
+    np.testing.assert_array_equal(fast, brute)
+
+
 def test_table_plane():
     tip = hand_collision.FINGER_TIP_Z_M
     assert not hand_collision.collides(top_down([0.1, 0.1, 0.05 + tip + 0.001]), table_z_m=0.05)[0]

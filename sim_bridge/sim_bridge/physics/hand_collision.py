@@ -10,8 +10,11 @@ along +z from the pre-grasp pose), which for boxes is just a longer box.
 This is a conservative filter; the grasp simulation itself uses the full hand.
 """
 
+import itertools
+
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 # The open-hand boxes are shared with the executor's TSDF check (one source).
 from robotiq_driver.hand_geometry import (  # noqa: F401  (re-exported)
@@ -49,19 +52,48 @@ def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
         hit |= lowest_point_z(X, approach_m, margin_m) < table_z_m
     if points_world is not None and len(points_world):
         P = np.asarray(points_world, dtype=float)
-        lo_all, hi_all = boxes[:, 0].min(0), boxes[:, 1].max(0)
-        radius = np.linalg.norm(np.maximum(np.abs(lo_all), np.abs(hi_all)))
-        for k in np.flatnonzero(~hit):
-            R, t = X[k, :3, :3], X[k, :3, 3]
-            # cheap cull by the bounding sphere of the swept hand
-            d = P - t
-            near = d[np.einsum("mj,mj->m", d, d) < radius**2]
-            if not len(near):
-                continue
-            q = near @ R  # points in the TCP frame
-            inside = ((q[None] >= boxes[:, None, 0]) & (q[None] <= boxes[:, None, 1])).all(-1)
-            hit[k] = inside.any()
+        tree = cKDTree(P)
+        todo = np.flatnonzero(~hit)
+        # fingers first (HAND_PARTS reversed): they hit most, and a pose that hit is done
+        for lo, hi in (piece for box in boxes[::-1] for piece in _cube_like_pieces(*box)):
+            for chunk in np.array_split(todo, max(1, len(todo) // POSES_PER_QUERY)):
+                hit[chunk] = _points_in_box(X[chunk], P, tree, lo, hi)
+            todo = todo[~hit[todo]]
     return hit
+
+
+POSES_PER_QUERY = 1024  # bounds the (pose, point) pairs held at once
+
+
+def _cube_like_pieces(lo, hi):
+    """The box lo..hi cut into pieces about as long as its shortest side, which tile it
+    exactly (neighbours share their faces' values): a long finger box swept along the
+    approach is queried as a few small cubes rather than one cube as long as it is."""
+    side = max(float(np.min(hi - lo)), 0.01)
+    edges = [np.linspace(a, b, max(1, int(np.ceil((b - a) / side - 1e-9))) + 1) for a, b in zip(lo, hi)]
+    return [(np.array([ex[i], ey[j], ez[k]]), np.array([ex[i + 1], ey[j + 1], ez[k + 1]]))
+            for ex, ey, ez in [edges]
+            for i in range(len(ex) - 1) for j in range(len(ey) - 1) for k in range(len(ez) - 1)]
+
+
+def _points_in_box(X, P, tree, lo, hi):
+    """(N,) bool: is any point of P inside the box lo..hi (TCP frame) at each pose X?
+    Only the points in a cube around the box's world bounding box are tested (Chebyshev
+    ball query): a hand sweeps a few centimetres of a scene ~30 cm across."""
+    if not len(X):
+        return np.zeros(0, dtype=bool)
+    R, t = X[:, :3, :3], X[:, :3, 3]
+    centres = R @ ((lo + hi) / 2) + t
+    half = np.abs(R) @ ((hi - lo) / 2)  # (N, 3): half extents of the box's world AABB
+    near = tree.query_ball_point(centres, half.max(axis=1), p=np.inf, return_sorted=False)
+    counts = np.fromiter((len(n) for n in near), dtype=np.int64, count=len(near))
+    if not counts.any():
+        return np.zeros(len(X), dtype=bool)
+    owner = np.repeat(np.arange(len(X)), counts)
+    index = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
+    q = np.einsum("nij,ni->nj", R[owner], P[index] - t[owner])  # into the TCP frame
+    inside = ((q >= lo) & (q <= hi)).all(axis=1)
+    return np.bincount(owner[inside], minlength=len(X)) > 0
 
 
 def lowest_point_z(X_world_tcp, approach_m=0.0, margin_m=0.0):
