@@ -6,7 +6,7 @@ ROS := set +u; source ros_ws/env.sh; set -u;
 # Both cores, one test file per worker (a file's module fixtures, e.g. a sim world, are built once).
 PYTEST_ARGS ?= -n 2 --dist loadfile
 
-.PHONY: help setup build test demo lock bench-detect bench-sim bench-gripper data-report data-objects data-scenes
+.PHONY: help setup build test demo lock bench-detect bench-train bench-sim bench-gripper data-report data-objects data-scenes
 
 help:
 	@echo "make demo   - set up everything and run the main job"
@@ -15,6 +15,7 @@ help:
 	@echo "make build  - colcon build only (after adding executables or messages)"
 	@echo "make lock   - re-resolve requirements.in into requirements.lock"
 	@echo "make bench-detect  - TSDF->grasps and depth-integration latency (median of 50+)"
+	@echo "make bench-train   - one training step (batch 8): the training forward vs the dense one"
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
@@ -59,6 +60,9 @@ lock:
 
 bench-detect: setup
 	@$(ROS) ros2 run gravgrasp_detector bench_detect
+
+bench-train: setup
+	@$(ROS) ros2 run gravgrasp_detector bench_train
 
 bench-sim: setup
 	@$(ROS) ros2 run sim_bridge bench_sim

@@ -21,6 +21,7 @@ setup(
             "tsdf = gravgrasp_detector.tsdf_node:main",
             "detect = gravgrasp_detector.detect_node:main",
             "bench_detect = gravgrasp_detector.bench_detect:main",
+            "bench_train = gravgrasp_detector.bench_train:main",
             "bag_play = gravgrasp_detector.bag_replay:main",
             "train = gravgrasp_detector.training:main",
             "model_card = gravgrasp_detector.model_card:main",

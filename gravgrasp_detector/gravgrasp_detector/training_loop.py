@@ -19,7 +19,7 @@ from tqdm import tqdm
 from . import atomic_files, model_file, networks, rotation, tsdf
 from .training_config import TrainConfig
 from .training_scenes import DataError, load_scene, make_example, select_labels, split_scenes
-from .training_losses import angular_error_deg, auroc, losses
+from .training_losses import angular_error_deg, auroc, losses, training_outputs
 
 
 @torch.no_grad()
@@ -30,7 +30,7 @@ def evaluate(model, scenes, config, device):
     loss_sum = {"total": 0.0, "score": 0.0, "validness": 0.0, "rotation": 0.0}
     for scene in scenes:
         ex = make_example(scene, config)
-        out = model(ex["tsdf"][None].to(device))
+        out = training_outputs(model, ex["tsdf"][None].to(device), [ex])  # rotation at the positives
         for k, v in losses(model, out, [ex], config).items():
             loss_sum[k] += float(v) / max(len(scenes), 1)
         valid_dense = torch.zeros(out["validness_logit"].shape[1:])
@@ -45,7 +45,7 @@ def evaluate(model, scenes, config, device):
         if pos.any():
             i, j, k = idx[pos].T
             abs_err.append((out["score_n"][0, i, j, k].cpu() - ex["score"][pos]).abs())
-            ch = out["rotation"][0].permute(1, 2, 3, 0)[i, j, k].float().cpu()
+            ch = out["rotation_at"].float().cpu()
             ang.append(angular_error_deg(rotation.reconstruct(model.rotation_representation, ch), ex["R"][pos]))
     logits, labels, listed = torch.cat(logits).numpy(), torch.cat(labels).numpy(), torch.cat(listed).numpy()
     predicted = logits > 0.0
@@ -125,7 +125,7 @@ def train(config: TrainConfig, progress=True, argv=None):
             batch = [make_example(train_scenes[i], config, rng) for i in batch_ids]
             x = torch.stack([ex["tsdf"] for ex in batch]).to(device)
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.bf16):
-                outputs = model(x)
+                outputs = training_outputs(model, x, batch)
             terms = losses(model, outputs, batch, config)
             optimizer.zero_grad(set_to_none=True)
             terms["total"].backward()

@@ -23,31 +23,45 @@ from . import rotation
 from .training_config import TrainConfig
 
 
+def stacked(batch, key, device):
+    """One field of every example of a batch, concatenated, on `device`."""
+    return torch.cat([ex[key] for ex in batch]).to(device)
+
+
+def listed_voxels(batch, device):
+    """The (batch, i, j, k) index tensors of every example's listed voxels (labels, then
+    explicit negatives) and a mask of the positives (validness target 1) among them."""
+    b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)]).to(device)
+    ijk = stacked(batch, "index", device).long()
+    return (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2]), stacked(batch, "valid", device) > 0.5
+
+
+def training_outputs(model, x, batch):
+    """model.forward_at for a batch: the rotation only at its positives."""
+    at, pos = listed_voxels(batch, x.device)
+    return model.forward_at(x, tuple(a[pos] for a in at))
+
+
 def losses(model, outputs, batch, config: TrainConfig):
     """-> dict of the three loss terms and their weighted total, for a batch (examples on
-    the CPU, outputs wherever the model runs)."""
+    the CPU, outputs wherever the model runs): of `model(x)` (dense rotation) or of
+    `training_outputs` (rotation at the positives only)."""
     device = outputs["validness_logit"].device
-
-    def stacked(key):  # one field of every example, on the outputs' device
-        return torch.cat([ex[key] for ex in batch]).to(device)
-
-    b_idx = torch.cat([torch.full((len(ex["index"]),), n) for n, ex in enumerate(batch)]).to(device)
-    ijk = stacked("index").long()
-    target_valid = stacked("valid")
-    at = (b_idx, ijk[:, 0], ijk[:, 1], ijk[:, 2])
+    at, pos = listed_voxels(batch, device)
+    target_valid = stacked(batch, "valid", device)
     loss_valid = validness_loss(outputs["validness_logit"], at, target_valid, config)
-    pos = target_valid > 0.5
     zero = outputs["score_n"].sum() * 0.0
     if config.target == "binary" or not pos.any():
         loss_score = zero
     else:
-        target_score = stacked("score")
+        target_score = stacked(batch, "score", device)
         loss_score = F.mse_loss(outputs["score_n"][at][pos], target_score[pos]) / model.score_scale_n ** 2
     if not pos.any():
         loss_rot = zero
     else:
-        channels = outputs["rotation"].permute(0, 2, 3, 4, 1)[at][pos].float()
-        loss_rot = rotation_loss(model.rotation_representation, channels, stacked("R")[pos])
+        channels = (outputs["rotation_at"] if "rotation_at" in outputs
+                    else outputs["rotation"].permute(0, 2, 3, 4, 1)[at][pos]).float()
+        loss_rot = rotation_loss(model.rotation_representation, channels, stacked(batch, "R", device)[pos])
     total = (config.loss_weight_score * loss_score + config.loss_weight_validness * loss_valid
              + config.loss_weight_rotation * loss_rot)
     return {"total": total, "score": loss_score, "validness": loss_valid, "rotation": loss_rot}

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from gravgrasp_detector import model_file, rotation, training, training_loop, training_losses, training_scenes
+from gravgrasp_detector import (bench_train, model_file, networks, rotation, training, training_loop, training_losses,
+                                training_scenes)
 from gravgrasp_detector.training_config import TrainConfig
 
 from box_scenes import write_scenes
@@ -99,6 +100,32 @@ def test_auroc_matches_hand_computed_values():
     assert training_losses.auroc([0.2, 0.9, 0.9, 0.9], [0, 0, 1, 1]) == pytest.approx(0.75)
 
 
+@pytest.mark.parametrize("representation", ["ex-ez", "quat"])
+def test_the_training_forward_gives_the_dense_forwards_losses_and_gradients(scenes, representation):
+    """training_outputs skips the dense rotation head and runs dec3 and the heads on the
+    half grid: the same losses and gradients as the dense forward, in float32 rounding."""
+    torch.manual_seed(0)
+    config = TrainConfig(data=str(scenes), out="", negative_weight=250.0)
+    rng = np.random.default_rng(0)
+    batch = [training_scenes.make_example(training_scenes.load_scene(f), config, rng)
+             for f in sorted(scenes.glob("*.npz"))[:3]]
+    x = torch.stack([ex["tsdf"] for ex in batch])
+    model = networks.GraspNet(representation, score_scale_n=20.0)
+
+    def loss_and_grads(outputs):
+        model.zero_grad()
+        terms = training_losses.losses(model, outputs, batch, config)
+        terms["total"].backward()
+        return {k: float(v.detach()) for k, v in terms.items()}, [p.grad.clone() for p in model.parameters()]
+
+    dense, dense_grads = loss_and_grads(model(x))
+    fast, fast_grads = loss_and_grads(training_losses.training_outputs(model, x, batch))
+    assert dense["rotation"] > 0 and dense["score"] > 0
+    assert fast == pytest.approx(dense, rel=1e-5)
+    for a, b in zip(dense_grads, fast_grads):
+        torch.testing.assert_close(b, a, rtol=1e-3, atol=1e-3 * float(a.abs().max()))
+
+
 @pytest.mark.slow  # trains three times (minutes)
 def test_training_learns_and_resumes_deterministically(scenes, tmp_path):
     # One thread: `make test` runs two test files at once on two cores, and two OpenMP
@@ -159,3 +186,10 @@ def test_precision_only_keeps_the_grasps_named_precision_in_the_scene_file(scene
     swapped = dict(scene, mode_names=("precision", "power", "none"))
     _, score_swapped, *_ = training_scenes.select_labels(swapped, config)
     assert (score_swapped > 35).all() and len(score_swapped) == (~precision).sum()
+
+
+def test_training_step_benchmark_prints_its_figure_last(capsys):
+    bench_train.main(["--batch-size", "2", "--steps", "1", "--threads", "1"])
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1].startswith("train_step_s=") and float(lines[-1].split("=")[1]) > 0
+    assert any(line.startswith("train_step_dense_s=") for line in lines)
