@@ -173,6 +173,9 @@ class GraspExecutor:
         self.gripper = None
         self.calibration = None  # grip_calibration.EmptyClosedCalibration of this connection
         self.limits = limits
+        if limits.table_z_m is not None and not np.isfinite(limits.table_z_m):
+            raise ValueError(f"table_z_m {limits.table_z_m}: give the table top's height in the task frame [m] "
+                             "(0.0 when the task frame's origin is on the table)")
         self._stored_calibration = None  # a bad stored value stops the node at start (ValueError)
         if limits.empty_closed_width_m is not None:
             self._stored_calibration = grip_calibration.stored_calibration(

@@ -279,6 +279,8 @@ def test_closing_fingertips_below_the_table_are_refused(gripper_port):
     assert ex.execute(low, tsdf=with_object(0.08)).code == ge.ResultCode.SUCCESS
     # higher up, the narrow object is fine too
     assert ex.execute(grasp(z=0.075), tsdf=with_object(0.015)).code == ge.ResultCode.SUCCESS
+    with pytest.raises(ValueError, match="table_z_m nan"):
+        make_executor(gripper_port, table_z_m=float("nan"))
 
 
 def test_second_concurrent_call_is_busy_at_once(gripper_port):
