@@ -11,7 +11,8 @@ import trimesh
 from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
 from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
 from sim_bridge.datagen.object_sources import object_from_table
-from sim_bridge.datagen.scene_dataset import NEGATIVE_COLLIDES, NEGATIVE_FAILED, negative_voxels, run_scene_stage
+from sim_bridge.datagen.scene_dataset import (NEGATIVE_COLLIDES, NEGATIVE_FAILED, negative_voxels,
+                                              requested_object_count, run_scene_stage)
 from sim_bridge.datagen.voxel_labels import RESOLUTION
 from sim_bridge.physics import hand_collision
 from sim_bridge.physics.hand_model import FingerKinematics
@@ -223,3 +224,14 @@ def test_without_the_execution_check_labels_are_checked_only_where_simulated(gra
     assert (int(checked["n_grasps_collision_free"]) + int(checked["n_grasps_dropped_executed"])
             == int(unchecked["n_grasps_collision_free"]))
     assert len(checked["label_score"]) < len(unchecked["label_score"])
+
+
+def test_object_counts_follow_vgns_poisson_capped_or_are_uniform():
+    rng = np.random.default_rng(0)
+    poisson = np.bincount([requested_object_count(rng, "poisson", 5) for _ in range(4000)], minlength=6)[1:] / 4000
+    # Poisson(4) + 1 capped at 5: P(1..5) = 1.8, 7.3, 14.7, 19.5, 56.7 %
+    np.testing.assert_allclose(poisson, [0.018, 0.073, 0.147, 0.195, 0.567], atol=0.02)
+    uniform = np.bincount([requested_object_count(rng, "uniform", 5) for _ in range(4000)], minlength=6)[1:] / 4000
+    np.testing.assert_allclose(uniform, 0.2, atol=0.02)
+    with pytest.raises(ValueError, match="object_count 'many'"):
+        requested_object_count(rng, "many", 5)

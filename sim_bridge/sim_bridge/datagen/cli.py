@@ -31,7 +31,7 @@ from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings
 from .object_grasps import ObjectChunk, ObjectStageStore, RestTask, run_chunk, run_rest_task
 from .object_sources import mesh_sources, procedural_sources, read_name_list
-from .scene_dataset import run_scene_stage
+from .scene_dataset import OBJECT_COUNTS, run_scene_stage
 
 
 def run_object_stage(out_dir, sources, grasps_per_object, seed, workers=None, scheduler=None,
@@ -204,6 +204,10 @@ def main(argv=None):
     sc.add_argument("--scenes", type=int, required=True, help="number of scenes")
     sc.add_argument("--max-objects", type=int, default=5)
     sc.add_argument("--max-views", type=int, default=6)
+    sc.add_argument("--object-count", choices=OBJECT_COUNTS, default="poisson",
+                    help="objects per scene: 'poisson' (default) draws VGN's Poisson(4) + 1, capped at "
+                         "--max-objects (mostly full tables, like the benchmark's 5-object scenes); "
+                         "'uniform' draws 1..--max-objects alike (the v2 scenes)")
     sc.add_argument("--label-pose", choices=("commanded", "settled"), default="commanded",
                     help="hand pose a label carries: the one the robot commands (default) or the one after "
                          "the object settled in the hand (the v1 dataset)")
@@ -247,7 +251,8 @@ def _run(p, args):
     s = run_scene_stage(args.out, args.objects, args.meshes, args.scenes, args.seed, args.workers, args.scheduler,
                         max_objects=args.max_objects, max_views=args.max_views, progress=not args.no_progress,
                         label_pose=args.label_pose, symmetry=not args.no_symmetry,
-                        mirrors=not args.no_mirror_copies, execution_check=not args.no_execution_check)
+                        mirrors=not args.no_mirror_copies, execution_check=not args.no_execution_check,
+                        object_count=args.object_count)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
 

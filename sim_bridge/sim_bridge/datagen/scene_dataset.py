@@ -1,8 +1,8 @@
 """Scene stage: scenes -> TSDF + sparse gravity-rejection voxel labels (paper Sec. III).
 
 For scene i (seed from --seed and i only):
-1. draw 1..max_objects objects among those whose grasp table has a successful grasp,
-   and "packed" or "pile"; settle them on the table in Drake (scenes.arrange;
+1. draw 1..max_objects objects among those whose grasp table has a successful grasp
+   (how many: `object_count`, below), and "packed" or "pile"; settle them on the table in Drake (scenes.arrange;
    packed objects start in a resting pose of their table, see resting_poses);
 2. render 1..max_views depth images from random views on the upper hemisphere
    (Open3D ray casting of the posed visual meshes and the table) and fuse them into
@@ -87,6 +87,23 @@ class SceneTask:
     symmetry: bool = True           # also place grasps at the object's symmetries
     mirrors: bool = True            # ... its mirror symmetries included
     execution_check: bool = True    # step 4 at the voxel centre, closed pad tips vs the table
+    object_count: str = "poisson"   # | "uniform": see OBJECT_COUNTS
+
+
+# How many objects a scene requests. "poisson": VGN's data generation (Poisson with mean
+# 4, plus 1), capped at max_objects (the paper's 1-5): with 5, P(1..5) = 2/7/15/20/57 %,
+# close to the benchmark's 5-object scenes, and labels per scene follow the object count.
+# "uniform": 1..max_objects alike (the v2 scenes).
+OBJECT_COUNTS = ("poisson", "uniform")
+OBJECT_COUNT_LAMBDA = 4
+
+
+def requested_object_count(rng, how, max_objects):
+    if how == "poisson":
+        return int(min(rng.poisson(OBJECT_COUNT_LAMBDA) + 1, max_objects))
+    if how == "uniform":
+        return int(rng.integers(1, max_objects + 1))
+    raise ValueError(f"object_count {how!r}: use one of {OBJECT_COUNTS}")
 
 
 def usable_tables(objects_dir):
@@ -110,7 +127,7 @@ def run_scene(task: SceneTask):
 def _run_scene(task):
     rng = np.random.default_rng(task_seed(task.master_seed, "scene", task.index))
     for _ in range(5):  # redraw (same rng: still deterministic) if every object left the table
-        n_req = int(rng.integers(1, task.max_objects + 1))
+        n_req = requested_object_count(rng, task.object_count, task.max_objects)
         arrangement = str(rng.choice(ARRANGEMENTS))
         pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
         tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
@@ -290,7 +307,8 @@ class SceneStore:
 
 def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
                     max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings(),
-                    label_pose="commanded", symmetry=True, mirrors=True, execution_check=True):
+                    label_pose="commanded", symmetry=True, mirrors=True, execution_check=True,
+                    object_count="poisson"):
     """Generate scenes 0..n_scenes-1 that do not exist yet; returns a summary dict."""
     objects_dir = pathlib.Path(objects_out_dir) / "objects"
     names = tuple(usable_tables(objects_dir))
@@ -302,14 +320,16 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
     # the object pool must not change under a resumed run, or scene i would differ
     if label_pose not in ("commanded", "settled"):
         raise ValueError(f"label_pose {label_pose!r}: use 'commanded' or 'settled'")
+    if object_count not in OBJECT_COUNTS:
+        raise ValueError(f"object_count {object_count!r}: use one of {OBJECT_COUNTS}")
     manifest = dict(seed=seed, max_objects=max_objects, max_views=max_views, label_pose=label_pose,
                     symmetry=bool(symmetry), mirrors=bool(symmetry and mirrors),
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names), execution_check=bool(execution_check),
-                    packed_footprints=True)
-    # (out/scenes_v2's manifest has neither of the last two: it was made with bounding
-    # circles for packing and cannot be resumed by this generator)
+                    packed_footprints=True, object_count=object_count)
+    # (a directory made before footprint packing or object_count cannot be resumed by this
+    # generator: its manifest lacks those keys)
     mpath = store.dir / "manifest.json"
     if mpath.exists():
         old = json.loads(mpath.read_text())
@@ -321,7 +341,8 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
         atomic_files.save_json(mpath, manifest)
     tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
                        settings=settings, label_pose=label_pose, symmetry=bool(symmetry),
-                       mirrors=bool(symmetry and mirrors), execution_check=bool(execution_check))
+                       mirrors=bool(symmetry and mirrors), execution_check=bool(execution_check),
+                       object_count=object_count)
              for i in range(n_scenes) if not store.path(i).exists()]
     errors = []
 
