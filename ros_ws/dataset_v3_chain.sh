@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The v3 dataset and models from where they stand to the end, each step resuming where
+# it stopped, so that one line per session keeps the CPU busy across the steps:
+#   ros_ws/run_pinned.sh COMMIT out/dataset_v3.log -- out/pinned/<COMMIT:12>/ros_ws/dataset_v3_chain.sh
+# 1. the grasp tables grow to 256 candidates (models/grasp_tables_v2; commit them);
+# 2. 5,000 scenes into out/scenes_v3 (labels checked where the robot executes them);
+# 3. the data report (objects=, grasps=, power_fraction=, labels_per_scene_median=);
+# 4. the five models of `make models` into out/training_v3/<variant>/model.pt (copy them to
+#    models/ and refresh the cards by hand: what ships is a decision).
+# python -m rather than the make targets: those run `make setup` first (apt, pip, colcon
+# build of the checkout), which a pinned long job has no business doing; run_pinned.sh
+# has put the pinned packages first on PYTHONPATH.
+set -euo pipefail
+meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
+workers="${WORKERS:-2}"
+
+echo "[chain] $(date -u +%FT%TZ) tables"
+python -m sim_bridge.datagen objects --meshes "$meshes" --exclude models/vgn_heldout_meshes.txt --procedural 100 \
+  --limit 220 --grasps-per-object 256 --sim-setting time_step_s=0.001 --sim-setting max_force_n=100 \
+  --sim-setting force_ramp_rate_n_s=800 --seed 0 --out models/grasp_tables_v2 --workers "$workers" --no-progress
+
+echo "[chain] $(date -u +%FT%TZ) scenes"
+python -m sim_bridge.datagen scenes --objects models/grasp_tables_v2 --meshes "$meshes" --scenes 5000 --seed 0 \
+  --out out/scenes_v3 --workers "$workers" --no-progress
+
+echo "[chain] $(date -u +%FT%TZ) report"
+python -m sim_bridge.datagen.data_report models/grasp_tables_v2 --scenes out/scenes_v3
+
+for spec in ours: precision_only:--data-subset=precision-only binary:--target=binary ey_ez:--rotation=ey-ez \
+            quat:--rotation=quat; do
+  variant="${spec%%:*}"
+  echo "[chain] $(date -u +%FT%TZ) train $variant"
+  # shellcheck disable=SC2086  # the variant's option, if any, is one word
+  python -m gravgrasp_detector.training --data out/scenes_v3 --out "out/training_v3/$variant" --epochs 15 \
+    --threads "$workers" --no-progress --negative-weight=250 ${spec#*:}
+done
+echo "[chain] $(date -u +%FT%TZ) done"
