@@ -126,10 +126,12 @@ class ExecuteNode(Node):
                              "opening where this gripper's fingers stop closing on nothing [m], as measured "
                              "with gripper_cli calibrate; negative: measure it on every connection")
         limits.empty_closed_width_m = None if empty_closed < 0 else float(empty_closed)
-        limits.table_z_m = float(param(
-            "table_z_m", 0.0, "table top in the task frame [m] (the task frame's origin is on the table): refuse "
-                              "grasps whose closing fingers would reach below it; set it far below the "
-                              "workspace (e.g. -1.0) to turn the check off"))
+        table_z = float(param(
+            "table_z_m", -1.0, "table top in the task frame [m] (0.0 on a cell whose task origin is on the table): "
+                               "refuse grasps whose fingertips, closing in parallel onto what the TSDF shows "
+                               "between the pads, would reach below it; conservative for power grasps (it "
+                               "refused half of the power labels simulation passed); -1.0 or lower: off"))
+        limits.table_z_m = None if table_z <= -1.0 else table_z
         self.max_tsdf_age_s = param("max_tsdf_age_s", 5.0,
                                     "refuse a grasp (STALE_SCENE) when the latest TSDF is older than this [s] "
                                     "or none arrived; 0: no TSDF needed (no collision check without one)")

@@ -13,7 +13,6 @@ from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, Gri
 
 from ..datagen.object_sources import ObjectSource
 from ..physics.contact import SimSettings
-from ..physics.scenes import TABLE_HEIGHT_M
 from ..world import STROKE_M, SceneConfig, SimWorld, WorldSettings
 from .clearing import Refused
 from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
@@ -85,10 +84,11 @@ class SimCell:
         self.world = SimWorld(SceneConfig(objects=objects, object_mass_kg=mass_kg,
                                           arrangement=scene["arrangement"]), settings)
         self.protocol, self.volume, self._detect = protocol, volume, detect
-        # The executor's limits are the ROS node's defaults but the free-space speed and
-        # the sim's table top; grip force per the paper.
+        # The executor's limits are the ROS node's defaults but the free-space speed; grip
+        # force per the paper. No fingertip-table check (table_z_m), as the node's default:
+        # its parallel-closing estimate refused half of the power labels simulation passed.
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
-                                      max_speed_mps=protocol.free_space_speed_mps, table_z_m=TABLE_HEIGHT_M)
+                                      max_speed_mps=protocol.free_space_speed_mps)
         self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
                                       reachability=None, log=lambda *_: None)
         self.home = self.world.tcp_pose()

@@ -45,7 +45,6 @@ from sensor_msgs.msg import CameraInfo, Image
 from gravgrasp_msgs.msg import GraspArray
 from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
 
-from ..physics.scenes import TABLE_HEIGHT_M
 from ..world import SceneConfig, SimWorld, WorldSettings
 from .processes import Processes, installed
 
@@ -185,7 +184,7 @@ def run(args) -> dict:
             procs.wait_for("sim", "sim ready", 180)
             execute = procs.start("execute", [installed("gravgrasp_detector", "execute"), "--ros-args",
                                               "-p", f"gripper_port:={link}", "-p", "armed_at_start:=true",
-                                              "-p", "check_ik:=false", "-p", f"table_z_m:={TABLE_HEIGHT_M}",
+                                              "-p", "check_ik:=false",
                                               "-p", "arm_timeout_s:=120.0", "-p", "gripper_timeout_s:=60.0",
                                               "-p", "gripper_reply_timeout_s:=0.5"])
             procs.wait_for("execute", "execute ready", 120)
