@@ -1,0 +1,89 @@
+"""Does the executor's fingertip-table check agree with the labels? (gravgrasp_detector
+README, *Fingertips and the table*.)
+
+For every label of a scene directory, at the pose detection would publish for it (its
+voxel centre, its rotation): the executor's estimate of the lowest closed pad tip
+(`hand_clearance`: the pads stop at the extent of the occupied TSDF voxels between them,
+closing in parallel) against the tip the simulation's own fingers reach (forward
+kinematics of the finger angles the grasp table recorded when the object settled). Per
+grasp mode: how many labels the check would refuse and the estimate's error along the
+approach. The last line is `power_refused_fraction=`.
+
+    python -m sim_bridge.datagen.fingertip_check_study --scenes out/scenes_v3 \
+        --objects models/grasp_tables_v2 [--max-scenes 40]
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+
+import numpy as np
+
+from gravgrasp_detector import hand_clearance
+from robotiq_driver.hand_geometry import closed_tips_lowest_z, closing_opening_m, pad_tip_z_m
+
+from ..physics.hand_model import FingerKinematics
+from .object_grasps import MODE_NAMES, load_table
+from .voxel_labels import RESOLUTION
+
+
+def label_poses(scene, voxel_size_m):
+    """(K, 4, 4): each label's TCP pose at its voxel centre."""
+    e_x = scene["label_e_x"] / np.linalg.norm(scene["label_e_x"], axis=1, keepdims=True)
+    e_z = scene["label_e_z"] / np.linalg.norm(scene["label_e_z"], axis=1, keepdims=True)
+    X = np.repeat(np.eye(4)[None], len(e_x), axis=0)
+    X[:, :3, 0], X[:, :3, 1], X[:, :3, 2] = e_x, np.cross(e_z, e_x), e_z
+    X[:, :3, 3] = (scene["label_index"] + 0.5) * voxel_size_m
+    return X
+
+
+def compare(scene_dir, objects_dir, max_scenes=0):
+    """-> {mode name: dict(n, refused, error_mm (estimate - actual tip depth))}."""
+    fingers = FingerKinematics()
+    tables, out = {}, {}
+    files = sorted((pathlib.Path(scene_dir) / "scenes").glob("*.npz"))[:max_scenes or None]
+    for path in files:
+        z = dict(np.load(path))
+        table_z, voxel = float(z["table_height_m"]), 0.30 / RESOLUTION
+        X = label_poses(z, voxel)
+        points = hand_clearance.occupied_points(z["tsdf"], voxel, np.zeros(3))
+        points = points[points[:, 2] > table_z + voxel]  # as the executor: the table stops nothing
+        opening = closing_opening_m(X, points, np.zeros(len(X)))
+        refused = closed_tips_lowest_z(X, opening) < table_z
+        for i, name in enumerate(str(n) for n in z["object_names"]):
+            rows = np.flatnonzero(z["label_object"] == i)
+            if not len(rows):
+                continue
+            if name not in tables:
+                tables[name] = load_table(pathlib.Path(objects_dir) / "objects" / f"{name}.npz")
+            t = tables[name]
+            tips = fingers.pad_tips_tcp(t["finger_joint_names"], t["finger_joint_angles"][z["label_grasp"][rows]])
+            error_mm = 1000 * (pad_tip_z_m(opening[rows]) - tips[:, :, 2].max(axis=1))
+            for mode in np.unique(z["label_mode"][rows]):
+                sel = z["label_mode"][rows] == mode
+                d = out.setdefault(MODE_NAMES[int(mode)], {"n": 0, "refused": 0, "error_mm": []})
+                d["n"] += int(sel.sum())
+                d["refused"] += int(refused[rows][sel].sum())
+                d["error_mm"].extend(error_mm[sel].tolist())
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", required=True, help="scene stage output directory (holds scenes/)")
+    parser.add_argument("--objects", required=True, help="objects stage output directory (holds objects/)")
+    parser.add_argument("--max-scenes", type=int, default=0, help="the first N scenes (0: all)")
+    args = parser.parse_args(argv)
+    result = compare(args.scenes, args.objects, args.max_scenes)
+    for mode, d in sorted(result.items()):
+        e = np.asarray(d["error_mm"])
+        print(f"{mode}: labels={d['n']} refused={d['refused']} ({d['refused'] / max(d['n'], 1):.3f}) "
+              f"estimate_minus_actual_mm median={np.median(e):.1f} p10={np.percentile(e, 10):.1f} "
+              f"p90={np.percentile(e, 90):.1f}")
+    power = result.get("power", {"n": 0, "refused": 0})
+    print(f"power_refused_fraction={power['refused'] / max(power['n'], 1):.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
