@@ -24,12 +24,15 @@ def test_report_counts_and_last_lines(tmp_path, capsys):
     scenes = tmp_path / "scenes"
     scenes.mkdir()
     np.savez(scenes / "000000.npz", label_score=np.array([3.0, 4.0], np.float32), label_mode=np.array([0, 1], np.uint8),
-             arrangement=np.asarray("pile"))
+             arrangement=np.asarray("pile"), n_grasps_collision_free=np.int64(9), n_grasps_dropped_executed=np.int64(2))
     assert main([str(tmp_path)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert out[-4:] == ["objects=2", "grasps=4", "power_fraction=0.5000", "labels_per_scene_median=2"]
     assert any("c: mass 0.0 kg is not positive" in line for line in out)
     assert any("labels per scene mean 2.0" in line for line in out)
+    # 9 clear of the scene, 2 of them fail where executed: 7 valid grasps on 2 labelled voxels
+    assert any("valid grasps per scene" in line and "median 7," in line and "3.5 per labelled voxel" in line
+               for line in out), out
     assert (tmp_path / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # committed tables and regenerated scenes live apart: --scenes names the scene stage's --out
     tables = tmp_path / "tables"
