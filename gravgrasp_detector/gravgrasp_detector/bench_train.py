@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from . import networks
 from .training_config import TrainConfig
@@ -30,12 +31,7 @@ def synthetic_batch(batch_size, rng, labels=150, negatives=250, resolution=40):
     for _ in range(batch_size):
         flat = rng.choice(resolution ** 3, labels + negatives, replace=False)
         index = np.stack(np.unravel_index(flat, (resolution,) * 3), -1)
-        q = rng.normal(size=(labels + negatives, 4))
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
-        w, x, y, z = q.T
-        R = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-                      2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-                      2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1).reshape(-1, 3, 3)
+        R = Rotation.random(labels + negatives, random_state=rng).as_matrix()
         batch.append({
             "tsdf": torch.from_numpy(rng.uniform(0, 1, (1,) + (resolution,) * 3).astype(np.float32)),
             "index": torch.from_numpy(index),

@@ -58,22 +58,29 @@ def first_collision(poses: dict, tsdf) -> str:
     return ""
 
 
-def closed_tips_below_table(X_grasp: np.ndarray, tsdf, table_z_m: float) -> str:
-    """'' if the pad tips stay above the table top `table_z_m` (task frame) once the
-    fingers close at this grasp; otherwise a sentence saying how far they would press
-    into it. Closing swings the tips up to 13.5 mm further along the approach, more the
+def closed_tips_estimate(X_grasps, tsdf, table_z_m: float):
+    """-> (opening (N,), lowest pad tip z (N,)) [m] of the fingers closed at each grasp
+    (N, 4, 4): closing swings the tips up to 13.5 mm further along the approach, more the
     less there is between the pads (hand_geometry.pad_tip_z_m); the pads stop at the
     extent of the occupied voxels between them, above the table. None seen (no `tsdf`,
     or the object hidden from the camera): they close fully, the deepest case."""
+    X = np.asarray(X_grasps, dtype=float).reshape(-1, 4, 4)
     points = np.zeros((0, 3))
     if tsdf is not None:
         grid, voxel_size_m, origin = tsdf
         points = occupied_points(grid, voxel_size_m, origin)
         points = points[points[:, 2] > table_z_m + voxel_size_m]  # the table's own voxels stop nothing
-    opening = closing_opening_m(X_grasp, points, [0.0])
-    low = float(closed_tips_lowest_z(X_grasp, opening)[0])
+    opening = closing_opening_m(X, points, np.zeros(len(X)))
+    return opening, closed_tips_lowest_z(X, opening)
+
+
+def closed_tips_below_table(X_grasp: np.ndarray, tsdf, table_z_m: float) -> str:
+    """'' if the pad tips stay above the table top `table_z_m` (task frame) once the
+    fingers close at this grasp (closed_tips_estimate); otherwise a sentence saying how
+    far they would press into it."""
+    opening, low = (float(v[0]) for v in closed_tips_estimate(X_grasp, tsdf, table_z_m))
     if low >= table_z_m:
         return ""
     return (f"closing would press a fingertip {1000 * (table_z_m - low):.0f} mm into the table: the pads stop "
-            f"at a {1000 * opening[0]:.0f} mm opening (what the TSDF shows between them) with their tips at "
+            f"at a {1000 * opening:.0f} mm opening (what the TSDF shows between them) with their tips at "
             f"z = {low:.3f} m, below the table top at {table_z_m:.3f} m (parameter table_z_m): pick another grasp")

@@ -20,9 +20,10 @@ import pathlib
 import numpy as np
 
 from gravgrasp_detector import hand_clearance
-from robotiq_driver.hand_geometry import closed_tips_lowest_z, closing_opening_m, pad_tip_z_m
+from robotiq_driver.hand_geometry import pad_tip_z_m
 
 from ..physics.hand_model import FingerKinematics
+from ..physics.scenes import VOLUME_SIZE_M
 from .object_grasps import MODE_NAMES, load_table
 from .voxel_labels import RESOLUTION
 
@@ -44,12 +45,10 @@ def compare(scene_dir, objects_dir, max_scenes=0):
     files = sorted((pathlib.Path(scene_dir) / "scenes").glob("*.npz"))[:max_scenes or None]
     for path in files:
         z = dict(np.load(path))
-        table_z, voxel = float(z["table_height_m"]), 0.30 / RESOLUTION
+        table_z, voxel = float(z["table_height_m"]), VOLUME_SIZE_M / RESOLUTION
         X = label_poses(z, voxel)
-        points = hand_clearance.occupied_points(z["tsdf"], voxel, np.zeros(3))
-        points = points[points[:, 2] > table_z + voxel]  # as the executor: the table stops nothing
-        opening = closing_opening_m(X, points, np.zeros(len(X)))
-        refused = closed_tips_lowest_z(X, opening) < table_z
+        opening, low = hand_clearance.closed_tips_estimate(X, (z["tsdf"], voxel, np.zeros(3)), table_z)
+        refused = low < table_z
         for i, name in enumerate(str(n) for n in z["object_names"]):
             rows = np.flatnonzero(z["label_object"] == i)
             if not len(rows):

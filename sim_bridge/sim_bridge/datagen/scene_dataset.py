@@ -2,8 +2,9 @@
 
 For scene i (seed from --seed and i only):
 1. draw 1..max_objects objects among those whose grasp table has a successful grasp
-   (how many: `object_count`, below), and "packed" or "pile"; settle them on the table in Drake (scenes.arrange;
-   packed objects start in a resting pose of their table, see resting_poses);
+   (how many: `object_count`, below), and "packed" or "pile"; settle them on the
+   table in Drake (scenes.arrange; packed objects start in a resting pose of their
+   table, see resting_poses);
 2. render 1..max_views depth images from random views on the upper hemisphere
    (Open3D ray casting of the posed visual meshes and the table) and fuse them into
    the 40^3 TSDF of the 0.30 m workspace;
