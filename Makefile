@@ -26,6 +26,7 @@ help:
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
 	@echo "make symmetry-study - grasps copied to an object's symmetries, simulated against their originals (COPIES=rotation|mirror)"
+	@echo "make label-execution-study - a sample of SCENES_OUT's labels executed as the benchmark executes grasps, per mode and weight (PER_MODE=40)"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - v2 training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 	@echo "make data-objects-v1 / data-scenes-v1 - the v1 dataset of the shipped models"
@@ -127,7 +128,7 @@ data-report: setup
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
-.PHONY: bench-datagen label-settings-study symmetry-study data-objects-v1 data-scenes-v1
+.PHONY: bench-datagen label-settings-study symmetry-study label-execution-study data-objects-v1 data-scenes-v1
 bench-datagen: setup
 	@$(ROS) ros2 run sim_bridge bench_datagen --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
 	  --workers $(WORKERS) --json out/bench_datagen.json
@@ -142,6 +143,15 @@ label-settings-study: setup
 symmetry-study: setup
 	@$(ROS) ros2 run sim_bridge symmetry_study --tables models/grasp_tables_v2 --copies $(COPIES) \
 	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS) --out out/symmetry_study$(if $(filter mirror,$(COPIES)),_mirror).json
+
+# Do labels execute? A sample of SCENES_OUT's labels run as the benchmark runs a grasp, per
+# mode and weight (PER_MODE labels x 2 weights, ~1 CPU-min each). Last line:
+# approach_failure_fraction= (jammed on the approach or lift blocked).
+PER_MODE ?= 40
+label-execution-study: setup
+	@$(ROS) ros2 run sim_bridge label_execution_study --scenes $(SCENES_OUT) --objects models/grasp_tables_v2 \
+	  --meshes ../shared/meshes/vgn_train --per-mode $(PER_MODE) --weights 1.5,0.1 --workers $(WORKERS) \
+	  --out out/label_execution/$(notdir $(SCENES_OUT))
 
 # Dataset v1 (the shipped models' data): free sampler, settled poses.
 data-objects-v1: setup
