@@ -114,9 +114,9 @@ def run_label(task: LabelTask) -> dict:
         return {**record, "outcome": "moved", "reason": f"the object moved {moved_mm:.1f} mm while settling",
                 "cpu_s": round(time.process_time() - t0, 1)}
     tsdf = cell.observe()
-    X = label_poses({k2: z[k2][task.label:task.label + 1] for k2 in ("label_e_x", "label_e_z", "label_index")},
-                    voxel_size_m)[0]
-    grasp = Grasp(pose=X, score_n=score_n, validness=1.0, voxel_index=tuple(int(v) for v in z["label_index"][task.label]))
+    one = {key: z[key][task.label:task.label + 1] for key in ("label_e_x", "label_e_z", "label_index")}
+    grasp = Grasp(pose=label_poses(one, voxel_size_m)[0], score_n=score_n, validness=1.0,
+                  voxel_index=tuple(int(v) for v in one["label_index"][0]))
     try:
         attempt = cell.execute(grasp, tsdf)
         outcome, reason, held_mode = outcome_class(attempt), attempt["reason"], attempt["mode"]
