@@ -6,7 +6,12 @@
 # 2. 5,000 scenes into out/scenes_v3 (labels checked where the robot executes them);
 # 3. the data report (objects=, grasps=, power_fraction=, labels_per_scene_median=);
 # 4. the five models of `make models` into out/training_v3/<variant>/model.pt (copy them to
-#    models/ and refresh the cards by hand: what ships is a decision).
+#    models/ and refresh the cards by hand: what ships is a decision);
+# 5. `make benchmark` on those model files (--model overrides; the rounds record each file's
+#    sha256, so copying them to models/ later keeps the rounds valid): the 48 held-out VGN
+#    meshes into out/benchmark_heldout, then unseen procedural objects into out/benchmark.
+#    Pin the chain at or after 1830942 for this step (the benchmark cell without the
+#    executor's fingertip-table check); steps 1-4 resume at once where they are done.
 # python -m rather than the make targets: those run `make setup` first (apt, pip, colcon
 # build of the checkout), which a pinned long job has no business doing; run_pinned.sh
 # has put the pinned packages first on PYTHONPATH.
@@ -34,4 +39,16 @@ for spec in ours: precision_only:--data-subset=precision-only binary:--target=bi
   python -m gravgrasp_detector.training --data out/scenes_v3 --out "out/training_v3/$variant" --epochs 15 \
     --threads "$workers" --no-progress --negative-weight=250 ${spec#*:}
 done
+models=()
+for pair in ours:ours ours_precision:precision_only binary:binary ours_ey_ez:ey_ez ours_quat:quat; do
+  models+=(--model "${pair%%:*}=out/training_v3/${pair#*:}/model.pt")
+done
+bench_size=(--scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5)  # the Makefile's BENCH_SIZE
+echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes"
+python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
+  --out out/benchmark_heldout --workers "$workers" --no-progress "${bench_size[@]}" "${models[@]}" \
+  || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
+echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
+python -m sim_bridge.benchmark.clutter_benchmark --out out/benchmark --workers "$workers" --no-progress \
+  "${bench_size[@]}" "${models[@]}"
 echo "[chain] $(date -u +%FT%TZ) done"
