@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from gravgrasp_detector.grasp_execution import ExecutionLimits
 from sim_bridge.datagen import fingertip_check_study
 from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
 from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
@@ -222,9 +223,19 @@ def test_without_the_execution_check_labels_are_checked_only_where_simulated(gra
     np.testing.assert_array_equal(unchecked["tsdf"], checked["tsdf"])
     assert bool(checked["execution_check"]) and not bool(unchecked["execution_check"])
     assert int(unchecked["n_grasps_dropped_executed"]) == 0 < int(checked["n_grasps_dropped_executed"])
-    assert (int(checked["n_grasps_collision_free"]) + int(checked["n_grasps_dropped_executed"])
-            == int(unchecked["n_grasps_collision_free"]))
+    # n_grasps_collision_free counts what passed every check; the checked scene also drops
+    # grasps outside the executor's cone before any other check (clear of the scene or not)
+    assert int(unchecked["n_grasps_outside_cone"]) == 0 < int(checked["n_grasps_outside_cone"])
+    passed, dropped, outside = (int(checked[k]) for k in ("n_grasps_collision_free", "n_grasps_dropped_executed",
+                                                           "n_grasps_outside_cone"))
+    assert passed + dropped <= int(unchecked["n_grasps_collision_free"]) <= passed + dropped + outside
     assert len(checked["label_score"]) < len(unchecked["label_score"])
+    # the fixture's free sampler approaches from anywhere: only checked labels all keep to the cone
+    def degrees_from_down(z):
+        e_z = z["label_e_z"] / np.linalg.norm(z["label_e_z"], axis=1, keepdims=True)
+        return np.degrees(np.arccos(np.clip(-e_z[:, 2], -1, 1)))
+    assert degrees_from_down(checked).max() <= ExecutionLimits.approach_cone_deg + 1e-3
+    assert degrees_from_down(unchecked).max() > ExecutionLimits.approach_cone_deg
 
 
 def test_object_counts_follow_vgns_poisson_capped_or_are_uniform():

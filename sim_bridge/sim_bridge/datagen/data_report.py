@@ -63,7 +63,9 @@ def collect(data_dir, scenes_dir=None):
                 without_copies.append(int(z["n_labels_without_copies"]))
                 copies.append(int((z["label_symmetry"] > 0).sum()))
             if "n_grasps_dropped_executed" in z.files:  # scenes made with the execution check
-                valid.append(int(z["n_grasps_collision_free"]) - int(z["n_grasps_dropped_executed"]))
+                # n_grasps_collision_free counts the grasps that passed every check of the
+                # scene stage, the execution check included (dropped ones are already out)
+                valid.append(int(z["n_grasps_collision_free"]))
     stats["labels_per_scene"] = np.asarray(labels)
     stats["label_scores"] = np.concatenate(fg) if fg else np.zeros(0)
     stats["label_modes"] = np.concatenate(fg_mode) if fg_mode else np.zeros(0, np.uint8)

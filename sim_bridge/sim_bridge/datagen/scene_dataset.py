@@ -20,7 +20,11 @@ For scene i (seed from --seed and i only):
 4. drop a grasp if the open hand at that pose, or on its last `approach_m` of
    straight approach, intersects the table or another object (and, for
    commanded poses, the grasped object itself); with `execution_check`
-   (default) also if it would fail where the robot executes it: detection
+   (default) also if the executor would refuse it, its approach more than
+   `approach_cone_deg` from straight down (an object in a pile, or a copy at a
+   symmetry, can turn a sampled approach past the executor's cone; such a grasp
+   is no label, and no negative either, so that its voxel can be labelled with a
+   grasp the robot can execute), or if it would fail where the robot executes it: detection
    publishes the *voxel centre* (up to half a voxel off the simulated pose, so a
    deep grasp lands in its object and jams on the approach), so the open hand
    and its approach are checked there too, and the fingers closed as they
@@ -37,7 +41,9 @@ uint8 (power/precision), label_object (K,) uint8, label_grasp (K,) int32 and
 label_symmetry (K,) uint8 (provenance: row of that object's grasp table and the
 symmetry it was moved by, 0 = the simulated pose), the object names and poses,
 the arrangement, the camera poses and intrinsics, and the counts of projected
-and collision-free grasps, and how many labels the simulated grasps alone give
+grasps, of those that passed every check of step 4 (n_grasps_collision_free),
+of those dropped where executed (n_grasps_dropped_executed) or outside the
+cone (n_grasps_outside_cone), and how many labels the simulated grasps alone give
 (n_labels_without_copies). The explicit negatives for validness: negative_index
 (M,3) uint8, voxels without a label that hold a simulated failure (tried at the
 commanded pose, symmetries too; negative_reason 1) or a held grasp whose open hand
@@ -54,6 +60,7 @@ import numpy as np
 import trimesh
 
 from gravgrasp_detector import atomic_files
+from gravgrasp_detector.grasp_execution import ExecutionLimits
 from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
 
 from ..parallel import make_executor, run_tasks, task_seed
@@ -87,7 +94,8 @@ class SceneTask:
     label_pose: str = "commanded"   # | "settled"
     symmetry: bool = True           # also place grasps at the object's symmetries
     mirrors: bool = True            # ... its mirror symmetries included
-    execution_check: bool = True    # step 4 at the voxel centre, closed pad tips vs the table
+    execution_check: bool = True    # step 4: the executor's cone; at the voxel centre, closed pad tips vs the table
+    approach_cone_deg: float = ExecutionLimits.approach_cone_deg  # the executor's default
     object_count: str = "poisson"   # | "uniform": see OBJECT_COUNTS
 
 
@@ -158,7 +166,7 @@ def _run_scene(task):
     points = [hand_collision.surface_points(m, seed=0) @ X[:3, :3].T + X[:3, 3] for m, X in zip(meshes, poses)]
     X_all, f_all, mode_all, obj_all, row_all, sym_all = [], [], [], [], [], []
     failed_all, collides_all = [], []  # poses known not to work here: the explicit negatives
-    n_projected, n_dropped_executed = 0, 0
+    n_projected, n_dropped_executed, n_outside_cone = 0, 0, 0
     for k, (t, X_obj) in enumerate(zip(tables, poses)):
         key = "X_object_tcp_candidate" if task.label_pose == "commanded" else "X_object_tcp"
         S = None
@@ -185,6 +193,10 @@ def _run_scene(task):
             rows, sym = rows[src], np.repeat(np.arange(len(S)), len(src) // len(S))
         X = X_obj[None] @ X
         n_projected += len(rows)
+        if task.execution_check:
+            in_cone = -X[:, 2, 2] >= np.cos(np.deg2rad(task.approach_cone_deg))
+            n_outside_cone += int((~in_cone).sum())
+            X, rows, sym = X[in_cone], rows[in_cone], sym[in_cone]
         # the settled hand touches its object by definition; a commanded pose must clear it
         obstacles = [p for j, p in enumerate(points) if j != k or task.label_pose == "commanded"]
         others = np.concatenate(obstacles) if obstacles else None
@@ -228,6 +240,7 @@ def _run_scene(task):
         n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
         n_labels_without_copies=np.asarray(n_without_copies),
         execution_check=np.asarray(task.execution_check), n_grasps_dropped_executed=np.asarray(n_dropped_executed),
+        n_grasps_outside_cone=np.asarray(n_outside_cone),
         negative_index=negatives["index"], negative_reason=negatives["reason"],
         table_height_m=np.asarray(TABLE_HEIGHT_M), gravity_task=GRAVITY_DIRECTION_TASK,
         gravity_eps=np.asarray(GRAVITY_PROJECTION_EPS), approach_m=np.asarray(task.approach_m),
@@ -328,7 +341,8 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
                     objects_dir=str(objects_dir.resolve()),
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names), execution_check=bool(execution_check),
-                    packed_footprints=True, object_count=object_count)
+                    packed_footprints=True, object_count=object_count,
+                    approach_cone_deg=SceneTask.approach_cone_deg if execution_check else None)
     # (a directory made before footprint packing or object_count cannot be resumed by this
     # generator: its manifest lacks those keys)
     mpath = store.dir / "manifest.json"
