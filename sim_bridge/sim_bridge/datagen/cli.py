@@ -218,7 +218,8 @@ def main(argv=None):
                     help="copies at rotational symmetries only (none at mirror symmetries)")
     sc.add_argument("--no-execution-check", action="store_true",
                     help="check a grasp only where it was simulated (the v2 scenes), not also where the "
-                         "robot executes it: at its voxel centre, with the fingers closed above the table")
+                         "robot executes it: inside the executor's approach cone, at its voxel centre, with "
+                         "the fingers closed above the table")
 
     args = p.parse_args(argv)
     try:
