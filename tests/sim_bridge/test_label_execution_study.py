@@ -68,7 +68,7 @@ def test_summary_counts_outcomes_per_mode_and_weight_and_keeps_moved_apart():
     assert power["success_if_label_drops"] == [0, 1]
     assert s["precision"]["0.1"]["outcomes"] == {"success": 1}
     lines = study.summary_lines(s)
-    assert lines[0].startswith("| label mode | weight [kg] | executed | success |")
+    assert lines[0].startswith("| label mode | weight [kg] | labels | success |")
     assert "| power | 1.5 | 4 | 1 |" in lines[2] and lines[2].endswith("| 1 / 2 | 0 / 1 | 1 |")
 
 

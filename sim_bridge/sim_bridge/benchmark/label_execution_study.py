@@ -154,7 +154,7 @@ def summarize(records: list) -> dict:
 
 def summary_lines(summary: dict) -> list:
     outcomes = sorted({o for m in summary.values() for c in m.values() for o in c["outcomes"]} - {"success"})
-    lines = ["| label mode | weight [kg] | executed | " + " | ".join(["success", *outcomes]) +
+    lines = ["| label mode | weight [kg] | labels | " + " | ".join(["success", *outcomes]) +
              " | success where f_g ≥ m g | success where f_g < m g | moved (apart) |",
              "| --- | --- | ---: |" + " ---: |" * (len(outcomes) + 4)]
     for mode in sorted(summary):
