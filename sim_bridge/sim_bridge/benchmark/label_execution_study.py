@@ -39,6 +39,7 @@ import numpy as np
 
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.detection import Grasp
+from gravgrasp_detector.training_scenes import G_MPS2  # the binary target's m g
 from gravgrasp_detector.tsdf import TSDFVolume
 
 from ..datagen.fingertip_check_study import label_poses
@@ -52,7 +53,6 @@ from .protocol import Protocol, weight_key
 from .report import outcome_class
 from .sim_cell import SimCell
 
-GRAVITY_MPS2 = 9.81
 MOVED_MM = 5.0  # the labelled object moved more than this in the settle: the label is stale
 APPROACH_FAILURES = ("jammed_on_approach", "lift_blocked")
 
@@ -102,7 +102,7 @@ def run_label(task: LabelTask) -> dict:
     score_n = float(z["label_score"][task.label])
     record = {"scene": pathlib.Path(task.scene_path).stem, "label": task.label, "mass_kg": task.mass_kg,
               "object": names[k], "label_mode": mode, "score_n": round(score_n, 3),
-              "holds_weight_by_label": score_n >= task.mass_kg * GRAVITY_MPS2}
+              "holds_weight_by_label": score_n >= task.mass_kg * G_MPS2}
     volume = TSDFVolume(size_m=VOLUME_SIZE_M, resolution=RESOLUTION)
     cell = SimCell(scene, task.mass_kg, Protocol(), volume, detect=lambda tsdf: [])
     cell.settle()
