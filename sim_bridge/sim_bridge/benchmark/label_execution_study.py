@@ -42,10 +42,9 @@ from gravgrasp_detector.detection import Grasp
 from gravgrasp_detector.training_scenes import G_MPS2  # the binary target's m g
 from gravgrasp_detector.tsdf import TSDFVolume
 
-from ..datagen.fingertip_check_study import label_poses
 from ..datagen.object_grasps import MODE_NAMES, load_table
 from ..datagen.object_sources import source_from_table
-from ..datagen.voxel_labels import RESOLUTION
+from ..datagen.voxel_labels import RESOLUTION, label_poses
 from ..parallel import make_executor, run_tasks
 from ..physics.scenes import VOLUME_SIZE_M
 from .clearing import Refused
@@ -96,7 +95,6 @@ def run_label(task: LabelTask) -> dict:
              "objects": [{"source": dataclasses.asdict(source_from_table(t, task.mesh_dirs)),
                           "X_task_object": np.asarray(X, float).tolist()}
                          for t, X in zip(tables, z["X_task_object"])]}
-    voxel_size_m = VOLUME_SIZE_M / RESOLUTION
     k = int(z["label_object"][task.label])
     mode = MODE_NAMES[int(z["label_mode"][task.label])]
     score_n = float(z["label_score"][task.label])
@@ -115,7 +113,7 @@ def run_label(task: LabelTask) -> dict:
                 "cpu_s": round(time.process_time() - t0, 1)}
     tsdf = cell.observe()
     one = {key: z[key][task.label:task.label + 1] for key in ("label_e_x", "label_e_z", "label_index")}
-    grasp = Grasp(pose=label_poses(one, voxel_size_m)[0], score_n=score_n, validness=1.0,
+    grasp = Grasp(pose=label_poses(one)[0], score_n=score_n, validness=1.0,
                   voxel_index=tuple(int(v) for v in one["label_index"][0]))
     try:
         attempt = cell.execute(grasp, tsdf)

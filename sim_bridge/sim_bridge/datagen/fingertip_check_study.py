@@ -25,17 +25,7 @@ from robotiq_driver.hand_geometry import pad_tip_z_m
 from ..physics.hand_model import FingerKinematics
 from ..physics.scenes import VOLUME_SIZE_M
 from .object_grasps import MODE_NAMES, load_table
-from .voxel_labels import RESOLUTION
-
-
-def label_poses(scene, voxel_size_m):
-    """(K, 4, 4): each label's TCP pose at its voxel centre."""
-    e_x = scene["label_e_x"] / np.linalg.norm(scene["label_e_x"], axis=1, keepdims=True)
-    e_z = scene["label_e_z"] / np.linalg.norm(scene["label_e_z"], axis=1, keepdims=True)
-    X = np.repeat(np.eye(4)[None], len(e_x), axis=0)
-    X[:, :3, 0], X[:, :3, 1], X[:, :3, 2] = e_x, np.cross(e_z, e_x), e_z
-    X[:, :3, 3] = (scene["label_index"] + 0.5) * voxel_size_m
-    return X
+from .voxel_labels import RESOLUTION, label_poses
 
 
 def compare(scene_dir, objects_dir, max_scenes=0):

@@ -21,7 +21,7 @@ For scene i (seed from --seed and i only):
    straight approach, intersects the table or another object (and, for
    commanded poses, the grasped object itself); with `execution_check`
    (default) also if the executor would refuse it, its approach more than
-   `approach_cone_deg` from straight down (an object in a pile, or a copy at a
+   APPROACH_CONE_DEG from straight down (an object in a pile, or a copy at a
    symmetry, can turn a sampled approach past the executor's cone; such a grasp
    is no label, and no negative either, so that its voxel can be labelled with a
    grasp the robot can execute), or if it would fail where the robot executes it: detection
@@ -76,6 +76,7 @@ from .resting_poses import RestingPoses
 from .voxel_labels import RESOLUTION, at_voxel_centres, voxel_labels
 
 APPROACH_M = 0.05  # straight approach checked for collisions (pre-grasp distance)
+APPROACH_CONE_DEG = ExecutionLimits.approach_cone_deg  # the executor's default: it refuses the rest
 # VGN's simulated camera
 IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX = 640, 480, 540.0
 
@@ -95,7 +96,6 @@ class SceneTask:
     symmetry: bool = True           # also place grasps at the object's symmetries
     mirrors: bool = True            # ... its mirror symmetries included
     execution_check: bool = True    # step 4: the executor's cone; at the voxel centre, closed pad tips vs the table
-    approach_cone_deg: float = ExecutionLimits.approach_cone_deg  # the executor's default
     object_count: str = "poisson"   # | "uniform": see OBJECT_COUNTS
 
 
@@ -194,7 +194,7 @@ def _run_scene(task):
         X = X_obj[None] @ X
         n_projected += len(rows)
         if task.execution_check:
-            in_cone = -X[:, 2, 2] >= np.cos(np.deg2rad(task.approach_cone_deg))
+            in_cone = -X[:, 2, 2] >= np.cos(np.deg2rad(APPROACH_CONE_DEG))
             n_outside_cone += int((~in_cone).sum())
             X, rows, sym = X[in_cone], rows[in_cone], sym[in_cone]
         # the settled hand touches its object by definition; a commanded pose must clear it
@@ -342,7 +342,7 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
                     object_pool_sha256=hashlib.sha256("\n".join(names).encode()).hexdigest(),
                     object_pool_size=len(names), execution_check=bool(execution_check),
                     packed_footprints=True, object_count=object_count,
-                    approach_cone_deg=SceneTask.approach_cone_deg if execution_check else None)
+                    approach_cone_deg=APPROACH_CONE_DEG if execution_check else None)
     # (a directory made before footprint packing or object_count cannot be resumed by this
     # generator: its manifest lacks those keys)
     mpath = store.dir / "manifest.json"

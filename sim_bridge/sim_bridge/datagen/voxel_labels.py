@@ -61,6 +61,17 @@ def at_voxel_centres(X_task_tcp, size_m=VOLUME_SIZE_M, resolution=RESOLUTION):
     return X
 
 
+def label_poses(scene, voxel_size_m=VOLUME_SIZE_M / RESOLUTION):
+    """(K, 4, 4): each label of a scene file (label_e_x, label_e_z, label_index) as the
+    TCP pose at its voxel centre, the pose detection publishes for that voxel."""
+    e_x = scene["label_e_x"] / np.linalg.norm(scene["label_e_x"], axis=1, keepdims=True)
+    e_z = scene["label_e_z"] / np.linalg.norm(scene["label_e_z"], axis=1, keepdims=True)
+    X = np.repeat(np.eye(4)[None], len(e_x), axis=0)
+    X[:, :3, 0], X[:, :3, 1], X[:, :3, 2] = e_x, np.cross(e_z, e_x), e_z
+    X[:, :3, 3] = (np.asarray(scene["label_index"], float) + 0.5) * voxel_size_m
+    return X
+
+
 def dense_labels(labels, resolution=RESOLUTION):
     """Dense (score, validness, e_x, e_z) volumes from sparse labels, for training.
 
