@@ -63,7 +63,9 @@ def test_node_activates_moves_and_reports_over_emulator_process(ros_node, ros_pr
 
     started = move(ros_node, 0.085, speed_mps=0.02, wait=False)  # 2.25 s of travel from 40 mm
     assert started.success and started.message == "moving to 85.0 mm"
-    assert spin_until(ros_node, lambda: seen.last().moving, 5), seen.last()
+    # Stop once it has left 40 mm: under load the first status with `moving` can come before
+    # the first count of travel, and a stop then leaves it at 135 counts.
+    assert spin_until(ros_node, lambda: seen.last().moving and seen.last().position_counts < 135, 5), seen.last()
     assert trigger(ros_node, "/gripper/stop").success
     assert spin_until(ros_node, lambda: not seen.last().moving, 5), seen.last()
     count, stopped_at = len(seen.status), seen.last().position_counts
