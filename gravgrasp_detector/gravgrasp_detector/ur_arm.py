@@ -27,8 +27,16 @@ What happens to a request, in order; nothing moves until every check passed:
        has an inverse-kinematics solution                              refused otherwise
     6. moveL (asynchronous), then poll: stop requested -> stopL; protective stop,
        lost link, or no end within the expected time (+ margin, scaled by the
-       speed slider) -> stopL and fail; at the end the actual TCP must be within
-       position/orientation tolerance of the target.
+       speed slider) -> stopL and fail; contact: the TCP force's magnitude risen by
+       more than contact_force_limit_n since the motion began -> stopL and fail,
+       "stopped by contact" (the sim stand-in's rule and words); at the end the actual
+       TCP must be within position/orientation tolerance of the target.
+
+Why the contact stop counts the rise, not the force: the reading has a bias (payload
+settings, drift) and a motion may start under load, e.g. a lift with the closed fingers
+pressing the object on the table, which the lift relieves. A bias b raises the trip point
+by at most 2|b| (a 60 N limit trips between 60 and 60 + 2|b| N of contact); the UR's own
+force limit (pendant, Safety > Limits) stays the hard backstop.
 
 Monitoring only: `connect()` may return (None, receive, why) when the control interface
 cannot be built (e.g. the pendant is in Local mode for jogging); then poses are read
@@ -331,6 +339,8 @@ class URArm:
         # operation to the next: "< 0 and different from before" is this motion's end, even
         # for a motion too short to be seen running (ur_rtde's documented contract).
         before = self._rpc(control.getAsyncOperationProgress)
+        limit_n = s.contact_force_limit_n
+        force_start_n = self._tcp_force_n(receive) if limit_n > 0 else 0.0
         self._moving.set()
         if self._stop.is_set():
             return MoveResult(True, False, "stopped before the motion started (stop_motion)", joints)
@@ -349,6 +359,13 @@ class URArm:
             if safety not in SAFETY_MODES_THAT_MOVE:
                 return MoveResult(True, False, f"{SAFETY_MODES.get(safety, safety)} during the motion "
                                   f"{self._where(receive, target)}: clear it on the teach pendant", joints)
+            if limit_n > 0:
+                force_n = self._tcp_force_n(receive)
+                if force_n - force_start_n > limit_n:
+                    self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
+                    return MoveResult(True, False, f"stopped by contact {self._where(receive, target)}: the force on "
+                                      f"the hand rose from {force_start_n:.0f} to {force_n:.0f} N, by more than the "
+                                      f"{limit_n:.0f} N limit (contact_force_limit_n)", joints)
             progress = self._rpc(control.getAsyncOperationProgress)
             if progress < 0 and progress != before:
                 break
@@ -356,6 +373,8 @@ class URArm:
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
                 return MoveResult(True, False, f"motion did not end within {expected_s + s.motion_timeout_margin_s:.1f} s "
                                   f"(speed slider {100 * slider:.0f} %); stopped {self._where(receive, target)}", joints)
+        if self._stop.is_set():  # stop() halts the arm itself: the end seen may be its stopL
+            return MoveResult(True, False, f"motion stopped by stop_motion {self._where(receive, target)}", joints)
         actual = self._rpc(receive.getActualTCPPose)
         dp, da = pose_error(actual, target)
         if dp > s.position_tolerance_m or da > s.orientation_tolerance_deg:
@@ -371,6 +390,10 @@ class URArm:
         X_base_tcp = ur_pose_to_matrix(self._rpc(receive.getActualTCPPose))
         X_flange_tcp = ur_pose_to_matrix(self.settings.tcp_in_flange)
         return np.asarray(self.settings.X_task_base, float) @ X_base_tcp @ np.linalg.inv(X_flange_tcp)
+
+    def _tcp_force_n(self, receive) -> float:
+        """|force| of the controller's TCP wrench (payload-compensated), N."""
+        return float(np.linalg.norm(np.asarray(self._rpc(receive.getActualTCPForce), float)[:3]))
 
     def _where(self, receive, target) -> str:
         dp, _ = pose_error(self._rpc(receive.getActualTCPPose), target)

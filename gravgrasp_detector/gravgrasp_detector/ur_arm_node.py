@@ -92,6 +92,9 @@ class URArmNode(Node):
             orientation_tolerance_deg=p("orientation_tolerance_deg", defaults.orientation_tolerance_deg, _float("arrived = TCP this well aligned, deg", 0.01, 30.0)),
             payload_kg=p("payload_kg", 0.0, _float("> 0: setPayload on connect (2F-85: 0.925 kg); 0 = keep the pendant's payload", 0.0, 20.0)),
             payload_cog_m=tuple(p("payload_cog_m", [0.0, 0.0, 0.0], _text("payload centre of gravity in the flange frame [x, y, z], m"))),
+            contact_force_limit_n=p("contact_force_limit_n", defaults.contact_force_limit_n, _float(
+                "stop a motion when the TCP force's magnitude rises this much above its value when the motion "
+                "began, N (the sim's max_contact_force_n); 0 = off, leaving only the robot's own force limit", 0.0, 500.0)),
         )
         camera = p("camera_in_flange", [0.0] * 7, _text(
             "eye-in-hand camera: its optical frame in the flange frame [x, y, z (m), qx, qy, qz, qw] as "

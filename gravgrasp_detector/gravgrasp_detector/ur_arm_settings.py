@@ -1,6 +1,6 @@
 """What a UR arm adapter (`ur_arm.URArm`) is set up with: where the robot's base sits in
 the task frame, the TCP in the flange frame, the protective TCP box, speeds,
-accelerations, timeouts and arrival tolerances (`URArmSettings`), and the base pose
+accelerations, timeouts, arrival tolerances and the contact stop (`URArmSettings`), and the base pose
 parameter `[x, y, z, yaw]` as a transform (`xyz_yaw_to_matrix`). No rclpy, no ur_rtde.
 """
 from __future__ import annotations
@@ -32,6 +32,10 @@ class URArmSettings:
     poll_period_s: float = 0.02
     payload_kg: float = 0.0              # > 0: setPayload(payload_kg, payload_cog_m) on connect
     payload_cog_m: tuple = (0.0, 0.0, 0.0)
+    # A motion stops when the magnitude of the controller's TCP force (getActualTCPForce)
+    # rises this much above its value when the motion began: the sim stand-in's
+    # max_contact_force_n, the limit the benchmark's attempts ran under. 0 = off.
+    contact_force_limit_n: float = 60.0
 
     def check(self):
         """Raise ValueError naming the first bad setting."""
@@ -53,6 +57,8 @@ class URArmSettings:
             raise ValueError(f"default_speed_mps {self.default_speed_mps} exceeds max_speed_mps {self.max_speed_mps}")
         if self.motion_timeout_margin_s < 0:
             raise ValueError("motion_timeout_margin_s must be >= 0")
+        if not (math.isfinite(self.contact_force_limit_n) and self.contact_force_limit_n >= 0):
+            raise ValueError(f"contact_force_limit_n must be >= 0 N (0 = off), got {self.contact_force_limit_n}")
 
 
 def xyz_yaw_to_matrix(xyz_yaw) -> np.ndarray:

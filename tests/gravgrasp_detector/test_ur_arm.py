@@ -140,6 +140,31 @@ def test_protective_stop_during_the_motion():
     assert not result.success and "PROTECTIVE_STOP during the motion" in result.message, result.message
 
 
+def test_contact_stops_a_motion_by_the_force_gained_since_it_began():
+    arm, ur = make_arm()
+    ur.tcp_force = [3.0, -2.0, 10.0, 0.0, 0.0, 0.0]  # a bias (payload slightly off): stops nothing
+    assert arm.move(tcp(0.15, 0.15, 0.25), 0.5).success
+    ur.contact_after_s, ur.contact_force = 0.1, [0.0, 0.0, 80.0, 0.0, 0.0, 0.0]
+    t0 = time.monotonic()
+    result = arm.move(tcp(0.15, 0.15, 0.45), 0.2)  # 0.2 m at 0.2 m/s: ~1 s unless stopped
+    assert result.reachable and not result.success
+    # the sim stand-in's words, which the benchmark's report counts as a jam
+    assert result.message.startswith("stopped by contact") and "rose from 11 to 90 N" in result.message, result.message
+    assert "60 N limit" in result.message and ur.called("stopL")
+    assert time.monotonic() - t0 < 0.8
+    # Still pressing with 90 N, past the limit: backing off is not stopped by that press.
+    ur.contact_after_s = None
+    back = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
+    assert back.success, back.message
+
+
+def test_contact_stop_off_reads_no_force():
+    arm, ur = make_arm(contact_force_limit_n=0.0)
+    ur.contact_after_s, ur.contact_force = 0.05, [0.0, 0.0, 200.0, 0.0, 0.0, 0.0]
+    assert arm.move(tcp(0.15, 0.15, 0.25), 0.5).success
+    assert ur.called("getActualTCPForce") == []
+
+
 def test_ending_off_target_is_not_success():
     arm, ur = make_arm()
     ur.arrive_offset_m = 0.005
@@ -226,6 +251,8 @@ def test_bad_settings_are_named():
         URArmSettings(workspace_min_m=(0, 0, 0.5), workspace_max_m=(1, 1, 0.2)).check()
     with pytest.raises(ValueError, match="default_speed_mps"):
         URArmSettings(default_speed_mps=1.0, max_speed_mps=0.25).check()
+    with pytest.raises(ValueError, match="contact_force_limit_n"):
+        URArmSettings(contact_force_limit_n=-1.0).check()
     with pytest.raises(ValueError, match="base pose"):
         xyz_yaw_to_matrix([0, 0, 0])
 

@@ -11,6 +11,10 @@ for real against it. Faults are switched on by attributes:
                               every call raises RuntimeError (as ur_rtde does)
     never_finish              a motion never reports its end
     arrive_offset_m           a motion ends this far (x) from its target
+    tcp_force                 getActualTCPForce's reading at rest (a bias, or a press)
+    contact_after_s, contact_force
+                              after this long into a motion the TCP meets something:
+                              contact_force is added to the reading while it pushes on
     hang                      names of methods that block until `release()`
     refuse_connect            the constructor raises RuntimeError (robot unreachable)
     control_unavailable       only the receive interface connects (pendant in Local mode)
@@ -37,6 +41,10 @@ class FakeURController:
         self.lose_link_after_s = None
         self.never_finish = False
         self.arrive_offset_m = 0.0
+        self.tcp_force = [0.0] * 6
+        self.contact_after_s = None
+        self.contact_force = [0.0] * 6
+        self._in_contact = False
         self.hang: set[str] = set()
         self.refuse_connect = False
         self.control_unavailable = False  # the pendant in Local mode: only the receive interface connects
@@ -85,6 +93,8 @@ class FakeURController:
             elapsed = time.monotonic() - t0
             if self.lose_link_after_s is not None and elapsed >= self.lose_link_after_s:
                 self.link_up = False
+            if self.contact_after_s is not None and elapsed >= self.contact_after_s:
+                self._in_contact = True
             if self.protective_stop_after_s is not None and elapsed >= self.protective_stop_after_s:
                 self._freeze(start, target, self.protective_stop_after_s / duration)
                 self.safety_mode = 3
@@ -194,6 +204,11 @@ class FakeReceive:
 
     def disconnect(self):
         self.ur._record("disconnect", ())
+
+    def getActualTCPForce(self):
+        self.ur._record("getActualTCPForce", ())
+        self.ur._update()
+        return list(np.add(self.ur.tcp_force, self.ur.contact_force if self.ur._in_contact else 0.0))
 
     def getActualTCPPose(self):
         self.ur._record("getActualTCPPose", ())
