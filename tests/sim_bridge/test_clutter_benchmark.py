@@ -156,7 +156,8 @@ def test_modes_of_lifted_objects_are_tabulated_with_how_many_then_held():
 def test_a_motion_stopped_by_contact_is_told_apart_by_where_and_round_ends_are_per_method():
     def attempt(outcome, reason):
         return {"outcome": outcome, "reason": reason, "success": outcome == "success"}
-    contact = "stopped by contact after 0.004 of 0.150 m: 60 N on the hand exceeds the 60 N limit"
+    contact = ("stopped by contact after 0.004 of 0.150 m: the force on the hand rose from 0 to 61 N, by more than "
+               "the 60 N limit")
     jam = attempt("unreachable", f"arm could not reach the grasp pose: {contact}")
     jam_pre = attempt("unreachable", f"arm could not reach the pregrasp pose: {contact}")
     blocked = attempt("unreachable", f"arm could not reach the lift pose: {contact}")

@@ -104,6 +104,16 @@ def test_fingers_close_fully_on_nothing_and_an_obstacle_stops_the_arm():
     assert not ok and "stopped by contact" in message, message
     z = world.tcp_pose()[2, 3]
     assert box_top - 0.06 < z < box_top - 0.05, z  # palm (55 mm behind the TCP) on the box
+    # The limit counts the force gained since a motion began (a wrist sensor zeroed per
+    # motion, as ur_arm reads the UR's): with the limit below the press the hand still
+    # exerts, backing off works, and pressing further is stopped at once.
+    pressing_n = float(np.linalg.norm(world.hand_contact_force_n()))
+    assert pressing_n > 10.0, pressing_n
+    world.settings.max_contact_force_n = pressing_n / 2
+    ok, message = world.move_tcp(pose(R_TOP_DOWN, (0.03, 0.03, z - 0.005)), 0.05)
+    assert not ok and "stopped by contact after 0.00" in message, message
+    ok, message = world.move_tcp(pose(R_TOP_DOWN, (0.03, 0.03, box_top + 0.08)), 0.05)
+    assert ok, f"{message} (pressing with {pressing_n:.0f} N at the start)"
 
     reachable, why = world.check_reachable(pose(R_TOP_DOWN, (1.5, 0.15, 0.3)))
     assert not reachable and "outside" in why

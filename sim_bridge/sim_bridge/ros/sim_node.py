@@ -77,7 +77,7 @@ class SimNode(Node):
         rt = p("real_time_rate", 1.0, float_range("upper bound of simulated s per wall s", 0.1, 10.0, read_only=True)).value
         self.default_speed = p("default_speed_mps", 0.1, float_range("TCP speed when a request gives 0, m/s", 0.001, 1.0, read_only=True)).value
         max_speed = p("max_speed_mps", 0.25, float_range("TCP speed cap, m/s", 0.001, 1.0, read_only=True)).value
-        max_force = p("max_contact_force_n", 60.0, float_range("net contact force on the hand that stops a motion, N", 1.0, 1000.0, read_only=True)).value
+        max_force = p("max_contact_force_n", 60.0, float_range("rise of the net contact force on the hand since a motion began that stops it, N", 1.0, 1000.0, read_only=True)).value
         ws_min = p("workspace_min", [-0.15, -0.15, 0.05], described("arm stand-in reach, TCP box minimum [x, y, z], m", read_only=True)).value
         ws_max = p("workspace_max", [0.45, 0.45, 0.80], described("arm stand-in reach, TCP box maximum [x, y, z], m", read_only=True)).value
 

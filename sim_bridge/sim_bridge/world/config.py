@@ -68,7 +68,7 @@ class WorldSettings:
     workspace_max_m: tuple = (0.45, 0.45, 0.80)
     max_speed_mps: float = 0.25  # TCP speed cap (a request above it is slowed down)
     max_angular_speed_rad_s: float = 1.5
-    max_contact_force_n: float = 60.0  # net contact force on the hand that stops a motion
+    max_contact_force_n: float = 60.0  # rise of the net contact force on the hand (since a motion began) that stops it
     settle_time_s: float = 0.3  # after loading, with the hand at home
 
     def validate(self):
