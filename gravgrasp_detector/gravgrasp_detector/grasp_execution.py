@@ -18,6 +18,8 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
   open; once per connection: move to the pre-grasp raised by the
   lift height and calibrate there (close on nothing), or take a
   stored value; pre-grasp, approach, close, lift                  GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
+             an approach or lift the arm stops short (its contact
+             stop): open if closed, back out to the pre-grasp      UNREACHABLE
   verify     held = gOBJ 2 and the opening clearly wider than
              the calibrated empty-closed one, at the close (else
              the fingers open again and retreat) and once the
@@ -246,7 +248,10 @@ class GraspExecutor:
         elif self.calibration is None:
             self._calibrate()  # the stored value
         self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
-        self._move("grasp", poses["grasp"], lim.approach_speed_mps)
+        try:
+            self._move("grasp", poses["grasp"], lim.approach_speed_mps)
+        except Abort as abort:
+            raise self._backed_out(abort, gripper, poses, open_first=False) from None
         closed = self._grip(gripper, 0.0, "closing")
         verdict = self._judge(gripper, closed)
         if not verdict.held:
@@ -255,12 +260,35 @@ class GraspExecutor:
             self._grip(gripper, 0.085, "opening")
             self._move("lift (retreat)", poses["pregrasp"], lim.approach_speed_mps)
             raise Abort(ResultCode.NO_OBJECT, f"the grasp missed the object: {verdict.reason}")
-        self._move("lift", poses["lift"], lim.approach_speed_mps)
+        try:
+            self._move("lift", poses["lift"], lim.approach_speed_mps)
+        except Abort as abort:
+            raise self._backed_out(abort, gripper, poses, open_first=True) from None
         after = self._after_lift(gripper)
         verdict = self._judge(gripper, after)
         if not verdict.held:
             return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift: {verdict.reason}")
         return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, {verdict.reason}")
+
+    def _backed_out(self, abort: Abort, gripper, poses, open_first: bool) -> Abort:
+        """After the approach or the lift stopped short (UNREACHABLE: e.g. the arm's
+        contact stop), back the hand out along the approach to the pre-grasp, opening it
+        first if it closed, so that it does not stay pressed into the scene and the next
+        motion does not start there. Faults, timeouts and stops are left as they are (the
+        executor is disarmed). Returns the Abort to raise, saying what was done."""
+        if abort.outcome.code != ResultCode.UNREACHABLE:
+            return abort
+        message = abort.outcome.message
+        try:
+            if open_first:
+                self._grip(gripper, 0.085, "opening")
+            self._move("pre-grasp (backing out)", poses["pregrasp"], self.limits.approach_speed_mps)
+        except Abort as failed:
+            self.armed = False  # the hand may be stuck in the scene: a person must look
+            return Abort(failed.outcome.code, f"{message}; backing out failed: {failed.outcome.message}; "
+                                              "disarmed: check the hand, then arm again")
+        done = "opened and backed out" if open_first else "backed out"
+        return Abort(ResultCode.UNREACHABLE, f"{message}; {done} to the pre-grasp")
 
     def _judge(self, gripper, state):
         return grip_calibration.judge_grip(state.object_status, gripper.width_m(state), self.calibration,

@@ -78,7 +78,8 @@ def gripper_port(tmp_path, fingers):
 def make_executor(gripper_port, reach=None, armed=True, **limits):
     arm = RecordingArm(gripper_port.emulator.plant)
     lim = ge.ExecutionLimits(grip_speed_mps=0.15, **limits)
-    ex = ge.GraspExecutor(arm, lambda: Robotiq2F85(gripper_port.port, timeout_s=0.1, retries=1), lim, reach)
+    # Modbus answers within 0.3 s: under load 0.1 s once missed one
+    ex = ge.GraspExecutor(arm, lambda: Robotiq2F85(gripper_port.port, timeout_s=0.3, retries=1), lim, reach)
     ex.arm_motion(armed)
     return ex, arm
 
@@ -199,6 +200,53 @@ def test_object_lost_during_the_lift_is_dropped(gripper_port, fingers):
     # The fingers move on and stop fully closed; the executor judges once they are still.
     assert outcome.code == ge.ResultCode.DROPPED, outcome.message
     assert "slipped out" in outcome.message
+
+
+CONTACT = "stopped by contact after 0.030 of 0.050 m: the force on the hand rose from 0 to 64 N, by more than the 60 N limit"
+
+
+def stopping_arm(arm, stops):
+    """The arm's contact stop ends the motions `stops(X)` picks, short of them."""
+    original = arm.move_to
+
+    def move_to(X, speed, timeout):
+        if stops(X):
+            arm.targets.append((X.copy(), speed))
+            return False, CONTACT
+        return original(X, speed, timeout)
+    arm.move_to = move_to
+
+
+def test_an_approach_stopped_by_contact_backs_out_to_the_pregrasp(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    stopping_arm(arm, is_grasp)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE
+    assert outcome.message == f"arm could not reach the grasp pose: {CONTACT}; backed out to the pre-grasp"
+    assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.13]
+    assert arm.targets[-1][1] == pytest.approx(0.05)  # back out as slowly as it went in
+    assert gripper_port.emulator.width_m == pytest.approx(0.085) and ex.armed
+
+
+def test_a_lift_stopped_by_contact_opens_and_backs_out(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    stopping_arm(arm, is_lift)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE
+    assert outcome.message.startswith("arm could not reach the lift pose: stopped by contact"), outcome.message
+    assert outcome.message.endswith("; opened and backed out to the pre-grasp"), outcome.message
+    assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.23, 0.13]
+    assert gripper_port.emulator.width_m == pytest.approx(0.085) and ex.armed
+
+
+def test_a_hand_that_cannot_back_out_disarms(gripper_port):
+    ex, arm = make_executor(gripper_port)
+    stopping_arm(arm, lambda X: abs(X[2, 3] - 0.13) < 1e-6 and len(arm.targets) > 2 or is_grasp(X))
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE and not ex.armed
+    assert "; backing out failed: arm could not reach the pre-grasp (backing out) pose: stopped by contact" in outcome.message
+    assert outcome.message.endswith("disarmed: check the hand, then arm again"), outcome.message
+    assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
 
 
 def test_object_that_shifts_in_the_hand_during_the_lift_is_held(gripper_port, fingers):
