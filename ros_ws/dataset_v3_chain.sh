@@ -10,8 +10,9 @@
 # 5. `make benchmark` on those model files (--model overrides; the rounds record each file's
 #    sha256, so copying them to models/ later keeps the rounds valid): the 48 held-out VGN
 #    meshes into out/benchmark_heldout, then unseen procedural objects into out/benchmark.
-#    Pin the chain at or after 1830942 for this step (the benchmark cell without the
-#    executor's fingertip-table check); steps 1-4 resume at once where they are done.
+#    Pin the chain at or after 9663ac9 for this step (the benchmark cell without the
+#    executor's fingertip-table check, the contact stop counting the rise of the force, the
+#    executor backing out after one); steps 1-4 resume at once where they are done.
 # python -m rather than the make targets: those run `make setup` first (apt, pip, colcon
 # build of the checkout), which a pinned long job has no business doing; run_pinned.sh
 # has put the pinned packages first on PYTHONPATH.
