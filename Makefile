@@ -165,12 +165,15 @@ data-scenes-v1: setup
 # The shipped model and the benchmark's comparison models, all trained on TRAIN_DATA
 # (v1: out/scenes_v1, make data-scenes-v1; the shipped v2 models: TRAIN_DATA=out/scenes_v2
 # EPOCHS=15 TRAIN_ARGS='--negative-weight=250 --max-scenes=1580', i.e. scenes 0-1579 of the
-# 128-candidate tables). Each run resumes from out/training/<variant>/checkpoint.pt; on a GPU
+# 128-candidate tables; the v3 models: TRAIN_DATA=out/scenes_v3 TRAIN_OUT=out/training_v3 EPOCHS=15
+# TRAIN_ARGS=--negative-weight=250, what ros_ws/dataset_v3_chain.sh runs, so that this copies its
+# finished models). Each run resumes from TRAIN_OUT/<variant>/checkpoint.pt; on a GPU
 # machine `train` runs on CUDA (gravgrasp_detector README, *On a GPU machine*).
 # bf16 autocast only where the CPU has AMX (elsewhere it is emulated, slower than fp32).
 EPOCHS ?= 20
 TRAIN_DATA ?= out/scenes_v1
 TRAIN_ARGS ?=
+TRAIN_OUT ?= out/training
 BF16 := $(shell grep -qw amx_bf16 /proc/cpuinfo 2>/dev/null && echo --bf16)
 MODEL_VARIANTS := ours: precision_only:--data-subset=precision-only binary:--target=binary \
   ey_ez:--rotation=ey-ez quat:--rotation=quat
@@ -178,9 +181,9 @@ MODEL_VARIANTS := ours: precision_only:--data-subset=precision-only binary:--tar
 models: setup
 	@$(ROS) set -e; for spec in $(MODEL_VARIANTS); do \
 	  v=$${spec%%:*}; dest=models/gravgrasp$$([ $$v = ours ] || echo _$$v).pt; \
-	  ros2 run gravgrasp_detector train --data $(TRAIN_DATA) --out out/training/$$v --epochs $(EPOCHS) \
+	  ros2 run gravgrasp_detector train --data $(TRAIN_DATA) --out $(TRAIN_OUT)/$$v --epochs $(EPOCHS) \
 	    $(BF16) --no-progress $(TRAIN_ARGS) $${spec#*:}; \
-	  cp out/training/$$v/model.pt $$dest.tmp && mv $$dest.tmp $$dest && echo "wrote $$dest"; \
+	  cp $(TRAIN_OUT)/$$v/model.pt $$dest.tmp && mv $$dest.tmp $$dest && echo "wrote $$dest"; \
 	done
 
 # Paper Sec. V-A: cylinder + box, one camera; PNGs of the input TSDF and the score/validness
@@ -209,5 +212,5 @@ model-cards: setup
 	  v=$${spec%%:*}; m=models/gravgrasp$$([ $$v = ours ] || echo _$$v).pt; \
 	  if [ ! -f $$m ]; then echo "make model-cards: $$m does not exist (make models)" >&2; exit 2; fi; \
 	  q=out/qualitative/$$(basename $$m .pt); ros2 run sim_bridge qualitative --model $$m --out $$q > /dev/null; \
-	  ros2 run gravgrasp_detector model_card out/training/$$v --model $$m --qualitative $$q; \
+	  ros2 run gravgrasp_detector model_card $(TRAIN_OUT)/$$v --model $$m --qualitative $$q; \
 	done
