@@ -191,6 +191,25 @@ def test_a_scene_is_reproducible_from_its_seed_and_a_resumed_run_fills_gaps(gras
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
 
 
+def test_a_drop_that_blows_up_numerically_is_redrawn(grasp_data, monkeypatch):
+    from sim_bridge.datagen import scene_dataset
+    real, calls = scene_dataset.arrange, []
+
+    def arrange_once_nan(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("SceneGraph encountered a non-finite value (e.g., NaN or infinity) on a pose input port.")
+        return real(*args, **kwargs)
+    monkeypatch.setattr(scene_dataset, "arrange", arrange_once_nan)
+    objects_dir = grasp_data / "objects" / "objects"
+    task = scene_dataset.SceneTask(0, 5, str(objects_dir), tuple(scene_dataset.usable_tables(objects_dir)),
+                                   (str(grasp_data / "meshes"),), max_objects=3, max_views=1)
+    status, scene = scene_dataset.run_scene(task)
+    assert status == "ok" and len(calls) == 2 and len(scene["object_names"]) >= 1, scene
+    monkeypatch.setattr(scene_dataset, "arrange", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other")))
+    assert scene_dataset.run_scene(task) == ("error", "scene 0: RuntimeError: other")
+
+
 def first_scene(grasp_data, out, **options):
     """Scene 0 of the module's seed, made again with other options."""
     s = run_scene_stage(out, grasp_data / "objects", [grasp_data / "meshes"], 1, seed=5, workers=1,

@@ -135,13 +135,20 @@ def run_scene(task: SceneTask):
 
 def _run_scene(task):
     rng = np.random.default_rng(task_seed(task.master_seed, "scene", task.index))
-    for _ in range(5):  # redraw (same rng: still deterministic) if every object left the table
+    for _ in range(5):  # redraw (same rng: still deterministic) if every object left the table or the drop blew up
         n_req = requested_object_count(rng, task.object_count, task.max_objects)
         arrangement = str(rng.choice(ARRANGEMENTS))
         pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
         tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
         specs = [object_from_table(t, task.mesh_dirs) for t in tables]
-        keep, poses = arrange(specs, arrangement, rng, task.settings, rest=[_resting_poses(t) for t in tables])
+        try:
+            keep, poses = arrange(specs, arrangement, rng, task.settings, rest=[_resting_poses(t) for t in tables])
+        except RuntimeError as e:
+            # A drop that blew up numerically (scene 1591 of seed 0: "SceneGraph
+            # encountered a non-finite value") fails the same way on every rerun: redraw.
+            if "non-finite" not in str(e):
+                raise
+            keep, poses = [], []
         tables = [tables[i] for i in keep]
         specs = [specs[i] for i in keep]
         if keep:
