@@ -206,7 +206,9 @@ def test_a_drop_that_blows_up_numerically_is_redrawn(grasp_data, monkeypatch):
                                    (str(grasp_data / "meshes"),), max_objects=3, max_views=1)
     status, scene = scene_dataset.run_scene(task)
     assert status == "ok" and len(calls) == 2 and len(scene["object_names"]) >= 1, scene
-    monkeypatch.setattr(scene_dataset, "arrange", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other")))
+    def arrange_fails(*args, **kwargs):
+        raise RuntimeError("other")
+    monkeypatch.setattr(scene_dataset, "arrange", arrange_fails)
     assert scene_dataset.run_scene(task) == ("error", "scene 0: RuntimeError: other")
 
 

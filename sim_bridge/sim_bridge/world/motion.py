@@ -40,7 +40,7 @@ class Motion:
 
     def __init__(self, X_start, X_goal, t0_s, speed_mps, angular_speed_rad_s):
         self.X_start, self.X_goal, self.t0_s = np.asarray(X_start, float), np.asarray(X_goal, float), t0_s
-        self.force_start_n = np.zeros(3)  # net contact force on the hand when it began (task frame)
+        self.force_start_n = 0.0  # |net contact force on the hand| when it began
         self.delta_p = self.X_goal[:3, 3] - self.X_start[:3, 3]
         self.delta_w = _rotvec(self.X_start[:3, :3].T @ self.X_goal[:3, :3])  # in the start frame
         self.length_m = float(np.linalg.norm(self.delta_p))

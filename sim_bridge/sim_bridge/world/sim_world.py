@@ -159,13 +159,12 @@ class SimWorld:
             self._set_hand_state(X, v, w)
             self.simulator.AdvanceTo(t + dt)
             force_n = float(np.linalg.norm(self.hand_contact_force_n()))
-            start_n = float(np.linalg.norm(m.force_start_n))
-            if force_n - start_n > self.settings.max_contact_force_n:
+            if force_n - m.force_start_n > self.settings.max_contact_force_n:
                 X_now = self.tcp_pose()
                 self._hold = X_now
                 done = float(np.linalg.norm(X_now[:3, 3] - m.X_start[:3, 3]))
                 m.finish(False, f"stopped by contact after {done:.3f} of {m.length_m:.3f} m: "
-                                f"the force on the hand rose from {start_n:.0f} to {force_n:.0f} N, by more "
+                                f"the force on the hand rose from {m.force_start_n:.0f} to {force_n:.0f} N, by more "
                                 f"than the {self.settings.max_contact_force_n:.0f} N limit")
             elif m.finished(self.time_s):
                 self._hold = m.X_goal
@@ -215,7 +214,7 @@ class SimWorld:
             if not ok:
                 m.finish(False, msg)
             else:
-                m.force_start_n = self.hand_contact_force_n()
+                m.force_start_n = float(np.linalg.norm(self.hand_contact_force_n()))
                 self._motion = m
             return m
 
