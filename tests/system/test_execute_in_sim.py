@@ -10,7 +10,6 @@ import math
 import pathlib
 import re
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -114,10 +113,11 @@ def test_refusals_then_a_successful_lift(world):
 
     # The real grasp, and a second call while it runs.
     results = {}
+    moves = motions_so_far(world)
     worker = threading.Thread(target=lambda: results.setdefault(
         "first", call(client, request(p, q), timeout_s=240)))
     worker.start()
-    time.sleep(1.0)  # let the first call get going (it takes tens of seconds)
+    wait_for_motion(world, moves)  # the first call is executing (it takes tens of seconds)
     other = node.create_client(ExecuteGrasp, "execute_grasp")
     busy = call(other, request(p, q), timeout_s=30)
     worker.join(260)
@@ -147,9 +147,10 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
 
     # Overcurrent fault raised by the emulated gripper while the hand approaches.
     results = {}
+    moves = motions_so_far(world)
     worker = threading.Thread(target=lambda: results.setdefault("r", call(client, request(p, q), 240)))
     worker.start()
-    time.sleep(0.5)
+    wait_for_motion(world, moves)
     assert call(node.create_client(Trigger, "inject_gripper_fault"), Trigger.Request()).success
     worker.join(250)
     fault = results["r"]
@@ -164,13 +165,27 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     estop = node.create_publisher(Bool, "emergency_stop", 10)
     assert wait_until(lambda: estop.get_subscription_count() > 0, 15)
     results.clear()
+    moves = motions_so_far(world)
     worker = threading.Thread(target=lambda: results.setdefault("r", call(client, request(p, q), 240)))
     worker.start()
-    time.sleep(1.5)
+    wait_for_motion(world, moves)
     estop.publish(Bool(data=True))
     worker.join(250)
     assert results["r"].result_code in (R.NOT_ARMED, R.GRIPPER_FAULT), results["r"].message
     assert call(client, request(p, q), 60).result_code == R.NOT_ARMED
+
+
+MOTION_LINE = "move_to_pose: hand to"
+
+
+def motions_so_far(world) -> int:
+    """Motions the sim's arm stand-in has started (it logs one line per motion)."""
+    return world["procs"][0].output().count(MOTION_LINE)
+
+
+def wait_for_motion(world, before: int, timeout_s: float = 60.0):
+    """Until the arm stand-in starts a motion after the `before`th: an execution is under way."""
+    assert wait_until(lambda: motions_so_far(world) > before, timeout_s), "the executor moved no arm"
 
 
 def stamp_ns(msg):

@@ -238,6 +238,9 @@ class SimNode(Node):
             response.success, response.message = False, message
             return response
         motion = self.world.start_move(X, speed or self.default_speed)
+        # One line per motion: what the arm stand-in was asked to do, in the order it did it.
+        self.get_logger().info(f"move_to_pose: hand to {np.round(X[:3, 3], 3).tolist()} m at "
+                               f"{speed or self.default_speed:.2f} m/s ({motion.duration_s:.1f} s of sim time)")
         deadline = time.monotonic() + motion.duration_s / 0.05 + 10.0  # even at 5% of real time
         while not motion.done.wait(timeout=0.2):
             if self.runner.error is not None or time.monotonic() > deadline:
