@@ -22,8 +22,9 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
              stop): open if closed, back out to the pre-grasp      UNREACHABLE
   verify     held = gOBJ 2 and the opening clearly wider than
              the calibrated empty-closed one, at the close (else
-             the fingers open again and retreat) and once the
+             the fingers open again and back out) and once the
              fingers are still after the lift                     NO_OBJECT / DROPPED
+  backing out that fails disarms (the hand may be stuck)         its failure's code
 
 Why a calibration: closing fully on nothing, a 2F-85's fingertips can meet and report
 an object (gOBJ 2), at an opening that varies by unit and by how the underactuated
@@ -255,11 +256,10 @@ class GraspExecutor:
         closed = self._grip(gripper, 0.0, "closing")
         verdict = self._judge(gripper, closed)
         if not verdict.held:
-            # Open before retreating: a thin pinch the check cannot tell from an empty
+            # Open before backing out: a thin pinch the check cannot tell from an empty
             # hand must not be carried away while the answer says "nothing".
-            self._grip(gripper, 0.085, "opening")
-            self._move("lift (retreat)", poses["pregrasp"], lim.approach_speed_mps)
-            raise Abort(ResultCode.NO_OBJECT, f"the grasp missed the object: {verdict.reason}")
+            raise self._back_out(gripper, poses, ResultCode.NO_OBJECT,
+                                 f"the grasp missed the object: {verdict.reason}", open_first=True)
         try:
             self._move("lift", poses["lift"], lim.approach_speed_mps)
         except Abort as abort:
@@ -272,23 +272,28 @@ class GraspExecutor:
 
     def _backed_out(self, abort: Abort, gripper, poses, open_first: bool) -> Abort:
         """After the approach or the lift stopped short (UNREACHABLE: e.g. the arm's
-        contact stop), back the hand out along the approach to the pre-grasp, opening it
-        first if it closed, so that it does not stay pressed into the scene and the next
-        motion does not start there. Faults, timeouts and stops are left as they are (the
-        executor is disarmed). Returns the Abort to raise, saying what was done."""
+        contact stop), back the hand out (`_back_out`), so that it does not stay pressed
+        into the scene and the next motion does not start there. Faults, timeouts and
+        stops are left as they are (the executor is disarmed)."""
         if abort.outcome.code != ResultCode.UNREACHABLE:
             return abort
-        message = abort.outcome.message
+        return self._back_out(gripper, poses, ResultCode.UNREACHABLE, abort.outcome.message, open_first)
+
+    def _back_out(self, gripper, poses, code: ResultCode, message: str, open_first: bool) -> Abort:
+        """Open the fingers if they closed, then move back along the approach to the
+        pre-grasp at the approach speed. Returns the Abort to raise: `code` with `message`
+        and what was done, or, when backing out failed, that failure's code, having
+        disarmed (the hand may be stuck in the scene: a person must look)."""
         try:
             if open_first:
                 self._grip(gripper, 0.085, "opening")
             self._move("pre-grasp (backing out)", poses["pregrasp"], self.limits.approach_speed_mps)
         except Abort as failed:
-            self.armed = False  # the hand may be stuck in the scene: a person must look
+            self.armed = False
             return Abort(failed.outcome.code, f"{message}; backing out failed: {failed.outcome.message}; "
                                               "disarmed: check the hand, then arm again")
         done = "opened and backed out" if open_first else "backed out"
-        return Abort(ResultCode.UNREACHABLE, f"{message}; {done} to the pre-grasp")
+        return Abort(code, f"{message}; {done} to the pre-grasp")
 
     def _judge(self, gripper, state):
         return grip_calibration.judge_grip(state.object_status, gripper.width_m(state), self.calibration,

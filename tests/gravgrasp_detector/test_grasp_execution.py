@@ -123,8 +123,10 @@ def test_closing_on_nothing_is_no_object(gripper_port, fingers):
     ex, arm = make_executor(gripper_port)
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.NO_OBJECT
-    assert arm.targets[-1][0][2, 3] == pytest.approx(0.13)  # retreated to the pre-grasp pose
-    assert gripper_port.emulator.width_m == pytest.approx(0.085)  # opened before retreating
+    assert arm.targets[-1][0][2, 3] == pytest.approx(0.13)  # backed out to the pre-grasp pose
+    assert arm.targets[-1][1] == pytest.approx(0.05)  # at the approach speed
+    assert gripper_port.emulator.width_m == pytest.approx(0.085)  # opened before backing out
+    assert outcome.message.endswith("; opened and backed out to the pre-grasp") and ex.armed
 
 
 @pytest.mark.parametrize("meet_mm", [0.0, 1.1, 3.7, 8.0])
@@ -247,6 +249,19 @@ def test_a_hand_that_cannot_back_out_disarms(gripper_port):
     assert "; backing out failed: arm could not reach the pre-grasp (backing out) pose: stopped by contact" in outcome.message
     assert outcome.message.endswith("disarmed: check the hand, then arm again"), outcome.message
     assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
+
+
+def test_a_miss_that_cannot_back_out_disarms(gripper_port, fingers):
+    """Closed on nothing, then the way back is blocked: the hand may be stuck in the
+    scene, so the executor disarms, as after a stopped approach that cannot back out."""
+    fingers.size_m = None
+    ex, arm = make_executor(gripper_port)
+    stopping_arm(arm, lambda X: abs(X[2, 3] - 0.13) < 1e-6 and len(arm.targets) > 2)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE and not ex.armed
+    assert outcome.message.startswith("the grasp missed the object: "), outcome.message
+    assert "; backing out failed: arm could not reach the pre-grasp (backing out) pose: stopped by contact" in outcome.message
+    assert gripper_port.emulator.width_m == pytest.approx(0.085)  # opened before it tried
 
 
 def test_object_that_shifts_in_the_hand_during_the_lift_is_held(gripper_port, fingers):
