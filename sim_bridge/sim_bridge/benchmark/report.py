@@ -157,8 +157,12 @@ def outcome_class(attempt: dict) -> str:
     contact limit stopped it: `jammed_on_approach` (on the way to the pre-grasp or grasp
     pose: the open hand ran into something) or `lift_blocked` (the closed hand could not
     rise: it holds something that is held down, or presses on the table). Other
-    `unreachable` attempts (a target outside the arm's reach) keep the executor's word."""
+    `unreachable` attempts (a target outside the arm's reach) keep the executor's word.
+    A miss whose backing out then failed is a `no_object` (the miss is what the attempt
+    did; the executor answers with the back-out's failure)."""
     outcome, reason = attempt["outcome"], attempt.get("reason", "")
+    if reason.startswith("the grasp missed the object"):
+        return "no_object"
     if outcome == "unreachable" and "stopped by contact" in reason:
         if reason.startswith(("arm could not reach the pregrasp pose", "arm could not reach the grasp pose")):
             return "jammed_on_approach"
