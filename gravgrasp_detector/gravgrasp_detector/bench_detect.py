@@ -113,7 +113,7 @@ def main(argv=None):
     voxel_size = TSDFVolume().voxel_size_m
 
     print(f"machine={cpu_name()}, {os.cpu_count()} cores, torch threads {torch.get_num_threads()}, "
-          f"bf16 native {detection.bf16_available()}, load average {os.getloadavg()[0]:.2f}")
+          f"bf16 native {detection.bf16_available()}, AMX {detection.bf16_faster()}, load average {os.getloadavg()[0]:.2f}")
     print(f"versions=python {platform.python_version()}, torch {torch.__version__}, open3d {open3d.__version__}")
     print(f"model={model_note}; validness threshold {args.validness_threshold}")
     print(f"volumes={len(grids)} from {args.bag}")
@@ -176,8 +176,8 @@ def main(argv=None):
     grid_ms = median_ms(volume.grid, args.runs)
     print(f"integrate_16uc1_median_ms={integrate_mm:.2f}")
     print(f"grid_extraction_median_ms={grid_ms:.2f}")
-    # The detect node's default precision 'auto': bf16 where the CPU has it natively.
-    default = "detect_bf16" if "detect_bf16" in results else "detect_fp32"
+    # What the detect node's default precision 'auto' runs here.
+    default = f"detect_{detection.resolve_precision('auto')}"
     print(f"detect_median_ms={results[default]:.2f}")
     print(f"integrate_median_ms={integrate_m:.2f}")
     return 0

@@ -114,13 +114,14 @@ class DetectNode(Node):
             "node, OpenMP threads waiting on a busy core made detection up to 10x slower", 1, 64,
             read_only=True)).value
         torch.set_num_threads(threads)
-        # 'auto': bf16 where the CPU has native bf16 (2x faster here), else fp32. With the
-        # shipped model bench_detect measured 100 % top-10 agreement with fp32 (8 volumes
-        # of tests/data/tabletop_bag); re-check it for any other model.
+        # 'auto': bf16 where the CPU has AMX (2x faster there; with AVX-512 BF16 alone it
+        # was slower than fp32), else fp32. With the shipped model bench_detect measured
+        # 98 % top-10 agreement with fp32 (8 volumes of tests/data/tabletop_bag); re-check
+        # it for any other model.
         precision = p("precision", "auto", described(
             "Network arithmetic: 'fp32', 'bf16' (autocast, needs AVX-512 BF16/AMX to be fast; "
                         "check bench_detect's bf16-vs-fp32 top-10 agreement for your model first), "
-                        "or 'auto' (bf16 where the CPU has it)", read_only=True)).value
+                        "or 'auto' (bf16 where the CPU has AMX, where it is faster than fp32)", read_only=True)).value
 
         self.model_path = resolve_model_path(model_path)
         self.model, self.metadata = model_file.load_model(self.model_path)  # ModelFileError -> main

@@ -224,6 +224,16 @@ def test_detect_grasps_bf16_path_runs_and_ranks():
     assert net.enc1.weight.is_contiguous(memory_format=torch.channels_last_3d)
 
 
+@pytest.mark.parametrize("native, amx, expected", [(True, True, "bf16"), (True, False, "fp32"),
+                                                    (False, False, "fp32")])
+def test_auto_precision_is_bf16_only_where_the_cpu_has_amx(monkeypatch, native, amx, expected):
+    """AVX-512 BF16 without AMX ran detection slower in bf16 than in fp32: 'auto' keeps fp32 there."""
+    monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: native)
+    monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx, raising=False)
+    assert detection.resolve_precision("auto") == expected
+    assert detection.resolve_precision("bf16") == "bf16"  # asked for explicitly, it is used
+
+
 @pytest.mark.parametrize(
     "grid, cause, words",
     [
