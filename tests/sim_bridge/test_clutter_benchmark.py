@@ -73,6 +73,7 @@ def test_round_ends_when_nothing_is_detected_or_feasible():
     assert r["end"] == "no_grasp_detected" and r["attempts"] == []
     r = clearing.clear_table(ScriptedCell(2, [], scores=(5.0, 4.0), infeasible_ranks={5.0, 4.0}), 2)
     assert r["end"] == "no_feasible_grasp" and r["attempts"] == []
+    assert r["refused"] == {"grasps": 2, "first": ["out of reach", "out of reach"]}  # why, in the round file
 
 
 def test_the_best_feasible_grasp_is_executed():

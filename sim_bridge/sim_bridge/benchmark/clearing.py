@@ -9,6 +9,7 @@ import math
 
 CONSECUTIVE_FAILURES_END = 2
 ATTEMPTS_PER_OBJECT = 3
+MAX_REFUSALS_KEPT = 5  # reasons kept when a round ends with no feasible grasp
 
 
 class Refused(Exception):
@@ -33,7 +34,8 @@ def clear_table(cell, n_objects: int, attempts_per_object: int = ATTEMPTS_PER_OB
     A round ends when the table is clear, after CONSECUTIVE_FAILURES_END failures in a
     row, at attempts_per_object x n_objects attempts, when nothing is detected, when no
     detected grasp is executable, or on a Fault.
-    -> {end, attempts, fell_off} (+ fault: its message, when a Fault ended the round);
+    -> {end, attempts, fell_off} (+ fault: its message, when a Fault ended the round;
+    + refused: {grasps, first: the first refusal reasons}, when no grasp was feasible);
     each attempt is {rank, grasps_detected, skipped_infeasible, **execute's dict, success}."""
     attempts, fell_off, failures = [], [], 0
     max_attempts = attempts_per_object * n_objects
@@ -69,7 +71,10 @@ def clear_table(cell, n_objects: int, attempts_per_object: int = ATTEMPTS_PER_OB
         attempts.append({"rank": rank, "grasps_detected": len(grasps), "skipped_infeasible": len(rejected),
                          **result, "success": success})
         failures = 0 if success else failures + 1
-    return {"end": end, "attempts": attempts, "fell_off": fell_off}
+    record = {"end": end, "attempts": attempts, "fell_off": fell_off}
+    if end == "no_feasible_grasp":  # why the cell would start none of the last detection's grasps
+        record["refused"] = {"grasps": len(rejected), "first": [r[:200] for r in rejected[:MAX_REFUSALS_KEPT]]}
+    return record
 
 
 def success_rates(successes: int, attempts: int, objects: int, empty: float = math.nan) -> tuple:
