@@ -79,6 +79,14 @@ def train(config: TrainConfig, progress=True, argv=None):
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     out = pathlib.Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
+    checkpoint_path, model_path = out / "checkpoint.pt", out / "model.pt"
+    finished = _finished_history(checkpoint_path, model_path, config, device)
+    if finished is not None:
+        # Writing model.pt again would change its bytes (created_utc), so its sha256, which
+        # the benchmark's rounds record: every finished round of the model would run again.
+        print(f"{out} is trained to epoch {config.epochs} already: keeping {model_path} "
+              "(delete it to write it again)", flush=True)
+        return finished[-1] if finished else {}
 
     files = sorted(str(p) for p in pathlib.Path(config.data).rglob("*.npz"))
     if config.max_scenes:
@@ -99,14 +107,8 @@ def train(config: TrainConfig, progress=True, argv=None):
     model = networks.GraspNet(config.rotation, score_scale_n=score_scale_n, resolution=resolution).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     history, start_epoch = [], 0
-    checkpoint_path = out / "checkpoint.pt"
     if checkpoint_path.exists():
-        ckpt = torch.load(checkpoint_path, map_location=device, weights_only=False)
-        # options added since a checkpoint was written count at their defaults
-        written = dataclasses.asdict(TrainConfig(data=config.data, out=config.out)) | ckpt["config"]
-        if written != dataclasses.asdict(config) | {"epochs": ckpt["config"]["epochs"]}:
-            raise DataError(f"{checkpoint_path} was written with different options; use a new "
-                            "--out directory or delete the checkpoint to start over")
+        ckpt = _checkpoint(checkpoint_path, config, device)
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         history, start_epoch = ckpt["history"], ckpt["epoch"]
@@ -167,6 +169,27 @@ def train(config: TrainConfig, progress=True, argv=None):
     atomic_files.save_json(out / "history.json", history)
     plot_history(history, out / "training_curve.png")
     return history[-1] if history else {}
+
+
+def _checkpoint(path, config: TrainConfig, device):
+    """The checkpoint at `path`; DataError if it was written with other options."""
+    ckpt = torch.load(path, map_location=device, weights_only=False)
+    # options added since a checkpoint was written count at their defaults
+    written = dataclasses.asdict(TrainConfig(data=config.data, out=config.out)) | ckpt["config"]
+    if written != dataclasses.asdict(config) | {"epochs": ckpt["config"]["epochs"]}:
+        raise DataError(f"{path} was written with different options; use a new "
+                        "--out directory or delete the checkpoint to start over")
+    return ckpt
+
+
+def _finished_history(checkpoint_path, model_path, config: TrainConfig, device):
+    """The history of a run already trained to config.epochs whose model.pt was written
+    from its last checkpoint (not older than it), else None."""
+    if not (checkpoint_path.exists() and model_path.exists()
+            and model_path.stat().st_mtime >= checkpoint_path.stat().st_mtime):
+        return None
+    ckpt = _checkpoint(checkpoint_path, config, device)
+    return ckpt["history"] if ckpt["epoch"] >= config.epochs else None
 
 
 def _cpu_model() -> str:
