@@ -12,9 +12,11 @@
 #    meshes into out/benchmark_heldout, then unseen procedural objects into out/benchmark.
 #    Steps 4 and 5 interleave: Ours and Binary, their held-out rounds, the three other
 #    models, their held-out rounds, then the procedural objects.
-#    Pin the chain at or after 9663ac9 for this step (the benchmark cell without the
-#    executor's fingertip-table check, the contact stop counting the rise of the force, the
-#    executor backing out after one); steps 1-4 resume at once where they are done.
+#    Pin the chain at or after 8e3860f: before it, rerunning `train` on a finished model (as
+#    every restart of this chain does) wrote model.pt again with a new sha256, and the
+#    benchmark then reran every round of that model. (9663ac9 and later: the benchmark cell
+#    without the executor's fingertip-table check, the contact stop counting the rise of the
+#    force, the executor backing out after one.) Steps 1-4 resume at once where they are done.
 # python -m rather than the make targets: those run `make setup` first (apt, pip, colcon
 # build of the checkout), which a pinned long job has no business doing; run_pinned.sh
 # has put the pinned packages first on PYTHONPATH.
