@@ -8,7 +8,9 @@ directory (RUN_DIR: model.pt, history.json, training_curve.png as `train` writes
   The tables are --tables, or the `objects_dir` that `datagen scenes` recorded in
   scenes/manifest.json. data_report runs as a separate process: sim_bridge depends on
   this package, so this package does not import sim_bridge.
-- Training: the command line, training time and machine as `train` recorded them.
+- Training: the command line, training time and machine as `train` recorded them, and
+  the training curve, copied beside the card (<model stem>_training_curve.png): the run
+  directory is usually under out/, which a clone does not have.
 - Validation metrics: final and best epoch of history.json.
 - Qualitative check: the PNGs of `make qualitative` (out/qualitative/<model stem>/)
   and a paragraph for what a person saw in them. That paragraph (between the
@@ -130,6 +132,12 @@ def _link(path, card_dir):
     return f"[{path}]({os.path.relpath(os.path.abspath(path), os.path.abspath(card_dir))})"
 
 
+def curve_beside_card(run_dir, card_path):
+    """(the run's training_curve.png, where the card keeps its copy)."""
+    card_path = pathlib.Path(card_path)
+    return pathlib.Path(run_dir) / "training_curve.png", card_path.with_name(f"{card_path.stem}_training_curve.png")
+
+
 def human_notes(existing_card):
     """The paragraph a person wrote into an existing card, or the placeholder."""
     if existing_card.is_file():
@@ -206,9 +214,9 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
                      f"{'on' if m.get('bf16') else 'off'}")
     else:
         lines.append("- machine: not recorded by this training run")
-    curve = run_dir / "training_curve.png"
+    curve, copy = curve_beside_card(run_dir, card_path)
     if curve.is_file():
-        lines.append(f"- training curve: {_link(curve, card_dir)}")
+        lines.append(f"- training curve: {_link(copy, card_dir)} (a copy of {curve})")
     lines.append("")
 
     lines += ["## Validation metrics", "",
@@ -266,6 +274,9 @@ def main(argv=None):
     except (CardError, model_file.ModelFileError) as err:
         print(f"model_card: {err}", file=sys.stderr)
         return 2
+    curve, copy = curve_beside_card(run, card)
+    if curve.is_file():
+        atomic_files.save_bytes(copy, curve.read_bytes())
     atomic_files.save_bytes(card, text.encode())
     print(card)
     return 0

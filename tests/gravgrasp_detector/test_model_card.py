@@ -67,6 +67,10 @@ def test_card_has_metrics_data_command_and_machine(run):
     assert recorded["machine"]["cpu"] in card and "torch threads 1" in card
     assert f"`{model_file.file_sha256(model)}`" in card
     assert "_Not run yet: no PNGs" in card and model_card.HUMAN_PLACEHOLDER in card
+    # the curve is copied beside the card (a clone has no out/) and linked there
+    copy = model.parent / "gravgrasp_training_curve.png"
+    assert copy.read_bytes() == (out / "training_curve.png").read_bytes()
+    assert "(gravgrasp_training_curve.png)" in card
 
 
 def test_qualitative_pngs_are_linked_and_human_notes_survive(run):
