@@ -320,9 +320,19 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert cb.main(argv) == 0
     monkeypatch.undo()
     first = (out / "attempts.json").read_text()
-    # A partial run (one round's file lost) resumes to the same results.
+    # A partial run (one round's file lost) resumes to the same results; --report before
+    # that runs nothing and reports the rounds there are (none of ours).
     (out / "rounds" / "ours" / "0.3" / "packed_000.json").unlink()
     (out / "attempts.json").unlink()
+    monkeypatch.setattr(bench_rounds, "run_round", lambda task: pytest.fail("--report ran a round"))
+    capsys.readouterr()
+    assert cb.main(argv + ["--report"]) == 0
+    monkeypatch.undo()
+    assert "| ours | 0.3 | 0/1 |" in (out / "results.md").read_text()
+    assert "an interim report" in capsys.readouterr().out
+    assert not (out / "rounds" / "ours" / "0.3" / "packed_000.json").exists()
+    assert cb.main(argv[:1] + [str(tmp_path / "nothing")] + argv[2:] + ["--report"]) == 2
+    assert "holds no benchmark run" in capsys.readouterr().err
     assert cb.main(argv) == 0
     assert (out / "attempts.json").read_text() == first
     # Another configuration in the same directory is refused.

@@ -107,31 +107,40 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
 
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
-                  ablation_weights_kg=None, only_meshes=None) -> list:
+                  ablation_weights_kg=None, only_meshes=None, report_only=False) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
     `methods`: {name: model path}; ABLATION_METHODS run at `ablation_weights_kg` if given;
-    `only_meshes`: names of the meshes in `meshes_dir` to draw scenes from (None: all)."""
+    `only_meshes`: names of the meshes in `meshes_dir` to draw scenes from (None: all);
+    `report_only`: run nothing, write the outputs of the rounds finished so far (an interim
+    look at a run that is still going, in the same directory)."""
     only = tuple(sorted(only_meshes)) if only_meshes is not None else None
     plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
     out = pathlib.Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_files.remove_stale_temporaries(out)
+    if not report_only:  # a report must not touch the temporaries of a run still writing there
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_files.remove_stale_temporaries(out)
     config = {"seed": seed, "meshes": str(pathlib.Path(meshes_dir).resolve()) if meshes_dir else None,
               "procedural_seed": None if meshes_dir else PROCEDURAL_SEED, "objects_per_scene": OBJECTS_PER_SCENE,
               "protocol": dataclasses.asdict(protocol)}
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
     config_path = out / "config.json"
+    if report_only and not config_path.exists():
+        raise ValueError(f"{out} holds no benchmark run (no config.json): give the --out of a run")
     if config_path.exists():
         previous = json.loads(config_path.read_text())
         if previous != config:
             raise ValueError(f"{out} holds a run with another configuration ({config_path}); "
                              "use another --out, or delete it to start over")
+    shas = {m: file_sha256(p) for m, p in methods.items()}
+    ids = scene_ids(n_scenes)
+    if report_only:
+        excluded = json.loads((out / "excluded_objects.json").read_text())
+        return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
     atomic_files.save_json(config_path, config)
 
     usable, excluded = object_pool(meshes_dir, only=only)
     atomic_files.save_json(out / "excluded_objects.json", list(excluded))
-    ids = scene_ids(n_scenes)
     scenes, pending = {}, []
     for sid in ids:
         path = out / "scenes" / f"{sid}.json"
@@ -140,7 +149,6 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         else:
             pending.append(SceneDrawTask(sid, task_seed(seed, "scene", sid), tuple(usable)))
 
-    shas = {m: file_sha256(p) for m, p in methods.items()}
     rounds_dir = out / "rounds"
 
     def round_path(method, mass_kg, sid):
