@@ -244,11 +244,11 @@ class GraspExecutor:
         gripper = self._gripper()
         self._grip(gripper, 0.085, "opening")
         if "calibrate" in poses:  # once per connection
-            self._move("calibration", poses["calibrate"], lim.max_speed_mps)
+            self._move_to_start("calibration", poses["calibrate"])
             self._calibrate()
         elif self.calibration is None:
             self._calibrate()  # the stored value
-        self._move("pregrasp", poses["pregrasp"], lim.max_speed_mps)
+        self._move_to_start("pregrasp", poses["pregrasp"])
         try:
             self._move("grasp", poses["grasp"], lim.approach_speed_mps)
         except Abort as abort:
@@ -269,6 +269,22 @@ class GraspExecutor:
         if not verdict.held:
             return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift: {verdict.reason}")
         return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, {verdict.reason}")
+
+    def _move_to_start(self, name, X):
+        """A move from wherever the arm is to a pose above the scene (calibration,
+        pre-grasp). Only the poses were checked, not the way there: if the arm's contact
+        stop halts it, the hand touched something unexpected (a person, a part of the cell
+        outside the volume). There is no known path to back out along, so the executor
+        disarms: a person must look before it moves again."""
+        try:
+            self._move(name, X, self.limits.max_speed_mps)
+        except Abort as abort:
+            if abort.outcome.code != ResultCode.UNREACHABLE or "stopped by contact" not in abort.outcome.message:
+                raise
+            self.armed = False
+            raise Abort(ResultCode.UNREACHABLE, f"{abort.outcome.message}; the hand touched something on its way "
+                                                "to a pose above the scene; disarmed: check the cell, then arm "
+                                                "again") from None
 
     def _backed_out(self, abort: Abort, gripper, poses, open_first: bool) -> Abort:
         """After the approach or the lift stopped short (UNREACHABLE: e.g. the arm's

@@ -251,6 +251,29 @@ def test_a_hand_that_cannot_back_out_disarms(gripper_port):
     assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
 
 
+def test_a_move_to_the_pregrasp_stopped_by_contact_disarms(gripper_port):
+    """Only the poses were checked, not the way from wherever the arm was: a contact
+    there is unexpected, with no known path back, so the executor stops and disarms."""
+    ex, arm = make_executor(gripper_port)
+    stopping_arm(arm, lambda X: abs(X[2, 3] - 0.13) < 1e-6 and len(arm.targets) == 1)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE and not ex.armed
+    assert outcome.message.startswith(f"arm could not reach the pregrasp pose: {CONTACT}"), outcome.message
+    assert outcome.message.endswith("disarmed: check the cell, then arm again"), outcome.message
+    assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13]  # no further motion
+    assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
+
+
+def test_a_pregrasp_the_arm_refuses_leaves_the_executor_armed(gripper_port):
+    """No contact (e.g. outside the arm's reach): nothing touched, nothing to look at."""
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+    arm.move_to = lambda X, speed, timeout: ((False, "outside the arm's reach") if abs(X[2, 3] - 0.13) < 1e-6
+                                            else original(X, speed, timeout))
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE and ex.armed, outcome.message
+
+
 def test_a_miss_that_cannot_back_out_disarms(gripper_port, fingers):
     """Closed on nothing, then the way back is blocked: the hand may be stuck in the
     scene, so the executor disarms, as after a stopped approach that cannot back out."""
