@@ -24,6 +24,7 @@ import math
 import os
 import pathlib
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -132,6 +133,17 @@ def _link(path, card_dir):
     return f"[{path}]({os.path.relpath(os.path.abspath(path), os.path.abspath(card_dir))})"
 
 
+def _epoch_spread(history) -> str:
+    """'; median …, slowest … (epoch k)' from the cumulative wall_s of each epoch: the
+    mean hides a slow epoch (a cold first epoch, a machine shared with other jobs)."""
+    walls = [h.get("wall_s") for h in history]
+    if len(walls) < 2 or any(w is None for w in walls):
+        return ""
+    per = [float(b) - float(a) for a, b in zip([0.0] + walls[:-1], walls)]
+    slowest = max(range(len(per)), key=per.__getitem__)
+    return f"; median {statistics.median(per):.1f} s, slowest {per[slowest]:.1f} s (epoch {history[slowest]['epoch']})"
+
+
 def curve_beside_card(run_dir, card_path):
     """(the run's training_curve.png, where the card keeps its copy)."""
     card_path = pathlib.Path(card_path)
@@ -206,7 +218,8 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
     if wall is not None:
         n = history[-1]["epoch"]
         lines.append(f"- training time: {_duration(float(wall))} for {n} epoch{'s' if n != 1 else ''} "
-                     f"({float(wall) / max(1, history[-1]['epoch']):.1f} s per epoch, validation included)")
+                     f"({float(wall) / max(1, history[-1]['epoch']):.1f} s per epoch, validation included"
+                     f"{_epoch_spread(history)})")
     m = td.get("machine")
     if m:
         lines.append(f"- machine: {m.get('cpu', '?')}, {m.get('cores', '?')} logical cores, torch threads "

@@ -65,6 +65,9 @@ def test_card_has_metrics_data_command_and_machine(run):
     recorded = model_file.load_model(model)[1]["training_data"]
     assert f"command (as `train` recorded it): `{recorded['command']}`" in card
     assert recorded["machine"]["cpu"] in card and "torch threads 1" in card
+    first, second = history[0]["wall_s"], history[1]["wall_s"] - history[0]["wall_s"]
+    slow = 1 if first >= second else 2
+    assert f"median {(first + second) / 2:.1f} s, slowest {max(first, second):.1f} s (epoch {slow})" in card
     assert f"`{model_file.file_sha256(model)}`" in card
     assert "_Not run yet: no PNGs" in card and model_card.HUMAN_PLACEHOLDER in card
     # the curve is copied beside the card (a clone has no out/) and linked there
