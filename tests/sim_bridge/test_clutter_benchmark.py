@@ -331,6 +331,8 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert "| ours | 0.3 | 0/1 |" in (out / "results.md").read_text()
     assert "an interim report" in capsys.readouterr().out
     assert not (out / "rounds" / "ours" / "0.3" / "packed_000.json").exists()
+    (out / "excluded_objects.json").unlink()  # a run stopped before it listed them
+    assert cb.main(argv + ["--report"]) == 0
     assert cb.main(argv[:1] + [str(tmp_path / "nothing")] + argv[2:] + ["--report"]) == 2
     assert "holds no benchmark run" in capsys.readouterr().err
     assert cb.main(argv) == 0

@@ -135,7 +135,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     shas = {m: file_sha256(p) for m, p in methods.items()}
     ids = scene_ids(n_scenes)
     if report_only:
-        excluded = json.loads((out / "excluded_objects.json").read_text())
+        listed = out / "excluded_objects.json"  # absent only if the run was stopped within its first second
+        excluded = json.loads(listed.read_text()) if listed.exists() else []
         return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
     atomic_files.save_json(config_path, config)
 
