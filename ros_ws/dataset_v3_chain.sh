@@ -8,7 +8,12 @@
 # 1. the held-out benchmark of the shipped v3 Ours and Binary (models/gravgrasp.pt,
 #    models/gravgrasp_binary.pt: issue 16's first three targets need only these two);
 # 2. the grasp tables grow to 256 candidates (models/grasp_tables_v2, committed: done);
-# 3. 5,000 scenes into out/scenes_v3 (~2.7 h; labels checked where the robot executes them);
+# 3. 5,000 scenes into out/scenes_v3 (~2.7 h; labels checked where the robot executes them),
+#    first rebuilt from the committed recipes in models/scene_recipes_v3 (~45 min for 5,000:
+#    the physics is not redone), then the missing ones generated; before stopping a session
+#    pack the scenes made so far and commit them, or the next session makes them again:
+#      python -m sim_bridge.datagen recipes pack out/scenes_v3 models/scene_recipes_v3
+#      git add models/scene_recipes_v3 && git commit -m "Scene recipes: ..."
 # 4. the data report (objects=, grasps=, power_fraction=, labels_per_scene_median=);
 # 5. Ours-Precision, ey-ez and quaternion into out/training_v3/<variant>/model.pt (copy them
 #    to models/ and refresh the cards by hand: what ships is a decision; once copied, point
@@ -38,9 +43,16 @@ python -m sim_bridge.datagen objects --meshes "$meshes" --exclude models/vgn_hel
   --limit 220 --grasps-per-object 256 --sim-setting time_step_s=0.001 --sim-setting max_force_n=100 \
   --sim-setting force_ramp_rate_n_s=800 --seed 0 --out models/grasp_tables_v2 --workers "$workers" --no-progress
 
+recipes=models/scene_recipes_v3  # committed: what the physics decided per scene (~1 KB each)
+if compgen -G "$recipes/recipes_*.npz" > /dev/null; then
+  echo "[chain] $(date -u +%FT%TZ) scenes restored from $recipes (no physics; ~1 CPU-s a scene)"
+  python -m sim_bridge.datagen recipes restore "$recipes" out/scenes_v3 --objects models/grasp_tables_v2 \
+    --meshes "$meshes" --workers "$workers" --no-progress
+fi
 echo "[chain] $(date -u +%FT%TZ) scenes"
 python -m sim_bridge.datagen scenes --objects models/grasp_tables_v2 --meshes "$meshes" --scenes 5000 --seed 0 \
   --out out/scenes_v3 --workers "$workers" --no-progress
+python -m sim_bridge.datagen recipes pack out/scenes_v3 "$recipes"
 
 echo "[chain] $(date -u +%FT%TZ) report"
 python -m sim_bridge.datagen.data_report models/grasp_tables_v2 --scenes out/scenes_v3

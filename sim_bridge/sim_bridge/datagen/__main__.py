@@ -1,4 +1,4 @@
-"""`python -m sim_bridge.datagen objects|scenes ...` (the same as `ros2 run sim_bridge datagen`)."""
+"""`python -m sim_bridge.datagen objects|scenes|recipes ...` (the same as `ros2 run sim_bridge datagen`)."""
 
 from sim_bridge.datagen.cli import main
 

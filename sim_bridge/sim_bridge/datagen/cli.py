@@ -1,12 +1,14 @@
-"""Dataset generation command (paper Sec. III): `ros2 run sim_bridge datagen objects|scenes`.
+"""Dataset generation command (paper Sec. III): `ros2 run sim_bridge datagen objects|scenes|recipes`.
 
   objects  per-object grasp tables: antipodal candidates, closed on in the Drake
            grasp simulation, 6-direction disturbance-rejection scores.
   scenes   packed / pile scenes on a table from those tables: TSDF from rendered
            depth, grasps projected and collision-filtered, gravity projection,
            sparse voxel labels.
+  recipes  pack scenes into recipes small enough to commit (objects, settled poses,
+           views), or restore the scene files from them without the physics.
 
-Both are resumable (rerun the same command after a kill: finished outputs are
+All are resumable (rerun the same command after a kill: finished outputs are
 kept, partial ones never exist thanks to atomic writes), deterministic for a
 seed (per-task seeds derive from --seed and the task id), and parallel: local
 worker processes (--workers) or a Dask cluster (--scheduler tcp://host:8786; the
@@ -31,6 +33,7 @@ from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings
 from .object_grasps import ObjectChunk, ObjectStageStore, RestTask, run_chunk, run_rest_task
 from .object_sources import mesh_sources, procedural_sources, read_name_list
+from . import scene_recipes
 from .scene_dataset import OBJECT_COUNTS, run_scene_stage
 
 
@@ -221,6 +224,21 @@ def main(argv=None):
                          "robot executes it: inside the executor's approach cone, at its voxel centre, with "
                          "the fingers closed above the table")
 
+    rc = sub.add_parser("recipes", help="pack scenes into small committable recipes, or rebuild scenes from them")
+    rsub = rc.add_subparsers(dest="action", required=True)
+    pk = rsub.add_parser("pack", help="add the recipes of a scene directory to a recipe directory")
+    pk.add_argument("scenes", help="--out directory of `datagen scenes` (or its scenes/)")
+    pk.add_argument("recipes", help="recipe directory (e.g. models/scene_recipes_v3; grows, never drops)")
+    rs = rsub.add_parser("restore", help="write the scene files a directory lacks, from recipes (no physics)")
+    rs.add_argument("recipes", help="recipe directory made by `recipes pack`")
+    rs.add_argument("out", help="scene output directory (as `datagen scenes --out`; resumable)")
+    rs.add_argument("--objects", default=None,
+                    help="output directory of the objects stage the scenes were made from (default: the one "
+                         "recorded in the recipes)")
+    rs.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
+    rs.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    rs.add_argument("--no-progress", action="store_true")
+
     args = p.parse_args(argv)
     try:
         return _run(p, args)
@@ -232,6 +250,8 @@ def main(argv=None):
 
 
 def _run(p, args):
+    if args.stage == "recipes":
+        return _run_recipes(args)
     if args.stage == "objects":
         try:
             sources = _object_sources(args)
@@ -256,6 +276,27 @@ def _run(p, args):
                         object_count=args.object_count)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
+
+
+def _run_recipes(args):
+    try:
+        if args.action == "pack":
+            s = scene_recipes.pack(args.scenes, args.recipes)
+            print(f"recipes: scenes={s['scenes']} blocks_written={s['written']} ({args.recipes})")
+            return 0
+        s = scene_recipes.restore(args.recipes, args.out, args.objects, args.meshes, args.workers,
+                                  progress=not args.no_progress)
+    except scene_recipes.RecipeError as e:
+        print(f"datagen recipes: {e}", file=sys.stderr)
+        return 2
+    for e in s["errors"]:
+        print(e)
+    if s["differing"]:
+        print(f"{len(s['differing'])} rebuilt scenes have labels unlike the recorded ones (rounding on another "
+              f"CPU or library version; kept): {', '.join(map(str, s['differing'][:20]))}")
+    print(f"restore: scenes={s['scenes']} restored={s['restored']} differing={len(s['differing'])} "
+          f"error={len(s['errors'])}")
+    return 1 if s["errors"] else 0
 
 
 if __name__ == "__main__":

@@ -153,7 +153,17 @@ def _run_scene(task):
         specs = [specs[i] for i in keep]
         if keep:
             break
+    target = np.array([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M])
+    views = [random_view_on_hemisphere(rng, target) for _ in range(int(rng.integers(1, task.max_views + 1)))]
+    scene = label_scene(task, tables, specs, poses, views)
+    scene.update(arrangement=np.asarray(arrangement), n_objects_requested=np.asarray(n_req))
+    return scene
 
+
+def label_scene(task, tables, specs, poses, views):
+    """Steps 2-6 for objects already settled (poses X_task_object) and camera poses
+    `views`: all of the scene file but the arrangement and the requested object count.
+    Everything after the physics; scene_recipes rebuilds scenes with it."""
     # depth views -> TSDF
     table_mesh = trimesh.creation.box((2.0, 2.0, 0.05))
     table_mesh.apply_translation([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M - 0.025])
@@ -161,12 +171,8 @@ def _run_scene(task):
     intrinsics = CameraIntrinsics(IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX,
                                   (IMAGE_WIDTH - 1) / 2, (IMAGE_HEIGHT - 1) / 2)
     tsdf = TSDFVolume(size_m=VOLUME_SIZE_M, resolution=RESOLUTION)
-    target = np.array([VOLUME_SIZE_M / 2, VOLUME_SIZE_M / 2, TABLE_HEIGHT_M])
-    views = []
-    for _ in range(int(rng.integers(1, task.max_views + 1))):
-        T = random_view_on_hemisphere(rng, target)
+    for T in views:
         tsdf.integrate(renderer.render(intrinsics, T), intrinsics, T)
-        views.append(T)
 
     # project grasps, filter collisions, gravity projection
     meshes = [s.collision_mesh() for s in specs]
@@ -240,9 +246,8 @@ def _run_scene(task):
         label_mode=cat(mode_all, (0,), np.uint8)[g], label_object=cat(obj_all, (0,), np.uint8)[g],
         label_grasp=cat(row_all, (0,), np.int32)[g], label_symmetry=cat(sym_all, (0,), np.uint8)[g],
         object_names=np.asarray([str(t["name"]) for t in tables] or [""])[:len(tables)],
-        X_task_object=np.asarray(poses, np.float32).reshape(-1, 4, 4),
-        arrangement=np.asarray(arrangement), n_objects_requested=np.asarray(n_req),
-        T_task_camera=np.asarray(views, np.float32),
+        X_task_object=np.asarray(poses, np.float64).reshape(-1, 4, 4),  # float64: scene_recipes rebuilds from it
+        T_task_camera=np.asarray(views, np.float64).reshape(-1, 4, 4),
         intrinsics=np.asarray([IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX, intrinsics.cx, intrinsics.cy]),
         n_grasps_projected=np.asarray(n_projected), n_grasps_collision_free=np.asarray(len(f_all)),
         n_labels_without_copies=np.asarray(n_without_copies),

@@ -1,0 +1,227 @@
+"""Scene recipes: what a scene is made of, small enough to commit, from which the scene
+stage's file is rebuilt without the physics.
+
+Most of a scene's cost is settling its objects in Drake (step 1 of scene_dataset: ~4
+CPU-s a scene on 2 cores, piles more); given the settled poses, rendering, fusing,
+projecting and checking the grasps (steps 2-6, `scene_dataset.label_scene`) take ~0.9
+CPU-s. A scene file is ~60 KB, too much to commit 5,000 of; a recipe keeps only what
+step 1 decided (the objects, their settled poses, the camera poses, the arrangement, the
+requested object count, the seed), ~1 KB, and a digest of the labels to check a rebuilt
+scene against. So a dataset that took hours of physics survives a lost `out/`:
+
+    python -m sim_bridge.datagen recipes pack out/scenes_v3 models/scene_recipes_v3
+    python -m sim_bridge.datagen recipes restore models/scene_recipes_v3 out/scenes_v3 \\
+        --objects models/grasp_tables_v2 --meshes ../shared/meshes/vgn_train
+
+Recipes are stored in blocks of BLOCK scenes (`recipes_<first:06d>.npz`); `pack` rewrites
+a block only when scene files hold scenes it lacks (and never drops one), so commits of a
+growing dataset add whole blocks and rewrite one partial block. `restore` writes the
+scene files that are missing, with the manifest that lets `datagen scenes` resume there.
+A rebuilt scene whose labels differ from the recorded digest (another CPU or library
+version can move a grasp across a voxel boundary or a collision margin by rounding) is
+kept, and counted: its labels are still those of its own objects and TSDF.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import pathlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from gravgrasp_detector import atomic_files
+
+from ..parallel import make_executor, run_tasks
+from .object_grasps import load_table
+from .object_sources import object_from_table
+from .scene_dataset import SceneStore, SceneTask, label_scene, usable_tables
+
+BLOCK = 500  # scenes per recipe file
+DIGEST_KEYS = ("label_index", "label_mode", "label_object", "label_grasp", "label_symmetry",
+               "negative_index", "negative_reason")
+
+
+class RecipeError(Exception):
+    """Recipes or scenes that cannot be packed or restored; the message says what to do."""
+
+
+def label_digest(scene) -> str:
+    """16 hex digits over the integer label arrays of a scene (dict or npz)."""
+    h = hashlib.sha256()
+    for k in DIGEST_KEYS:
+        a = np.ascontiguousarray(scene[k])
+        h.update(f"{k}{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def _scene_dir(path):
+    """out/scenes_v3 or out/scenes_v3/scenes -> the directory holding the scene files."""
+    path = pathlib.Path(path)
+    return path / "scenes" if (path / "scenes").is_dir() else path
+
+
+def _block_path(recipe_dir, first):
+    return pathlib.Path(recipe_dir) / f"recipes_{first:06d}.npz"
+
+
+def read_block(path) -> dict:
+    """A recipe file -> {scene index: recipe dict}."""
+    try:
+        with np.load(path) as z:
+            b = {k: z[k] for k in z.files}
+    except (OSError, ValueError, KeyError) as err:
+        raise RecipeError(f"{path} is not a recipe file ({err}); pack it again from the scene files") from None
+    o_end, v_end = np.cumsum(b["object_count"]), np.cumsum(b["view_count"])
+    recipes = {}
+    for j, i in enumerate(b["index"]):
+        o0, v0 = o_end[j] - b["object_count"][j], v_end[j] - b["view_count"][j]
+        recipes[int(i)] = dict(object_names=b["object_names"][o0:o_end[j]], X_task_object=b["X_task_object"][o0:o_end[j]],
+                               T_task_camera=b["T_task_camera"][v0:v_end[j]], arrangement=b["arrangement"][j],
+                               n_objects_requested=b["n_objects_requested"][j], seed=b["seed"][j],
+                               approach_m=b["approach_m"][j], label_count=b["label_count"][j],
+                               label_digest=str(b["label_digest"][j]))
+    return recipes
+
+
+def _recipe_of(path) -> dict:
+    try:
+        with np.load(path) as z:
+            return dict(object_names=z["object_names"][:len(z["X_task_object"])], X_task_object=z["X_task_object"],
+                        T_task_camera=z["T_task_camera"], arrangement=z["arrangement"],
+                        n_objects_requested=z["n_objects_requested"], seed=z["seed"], approach_m=z["approach_m"],
+                        label_count=len(z["label_score"]), label_digest=label_digest(z))
+    except (OSError, ValueError, KeyError) as err:
+        raise RecipeError(f"scene file {path} is unreadable or not from `datagen scenes` ({err}); "
+                          "delete it and rerun `datagen scenes` to remake it") from None
+
+
+def _write_block(path, recipes: dict):
+    order = sorted(recipes)
+    r = [recipes[i] for i in order]
+    atomic_files.save_npz(
+        path, index=np.asarray(order, np.int32),
+        object_count=np.asarray([len(x["X_task_object"]) for x in r], np.int16),
+        object_names=np.asarray([str(n) for x in r for n in x["object_names"]]),
+        X_task_object=np.concatenate([np.asarray(x["X_task_object"]).reshape(-1, 4, 4) for x in r]),
+        view_count=np.asarray([len(x["T_task_camera"]) for x in r], np.int16),
+        T_task_camera=np.concatenate([np.asarray(x["T_task_camera"]).reshape(-1, 4, 4) for x in r]),
+        arrangement=np.asarray([str(x["arrangement"]) for x in r]),
+        n_objects_requested=np.asarray([int(x["n_objects_requested"]) for x in r], np.int16),
+        seed=np.asarray([x["seed"] for x in r], np.uint64),
+        approach_m=np.asarray([float(x["approach_m"]) for x in r]),
+        label_count=np.asarray([int(x["label_count"]) for x in r], np.int32),
+        label_digest=np.asarray([x["label_digest"] for x in r]))
+
+
+def pack(scene_dir, recipe_dir) -> dict:
+    """Add the recipes of the scene files under scene_dir to recipe_dir.
+    -> {scenes: recipes now held, written: blocks rewritten}."""
+    src, out = _scene_dir(scene_dir), pathlib.Path(recipe_dir)
+    manifest_path = src / "manifest.json"
+    if not manifest_path.exists():
+        raise RecipeError(f"{src} has no manifest.json: give the --out directory of `datagen scenes`")
+    manifest = json.loads(manifest_path.read_text())
+    out.mkdir(parents=True, exist_ok=True)
+    if (out / "manifest.json").exists():
+        old = json.loads((out / "manifest.json").read_text())
+        changed = sorted(k for k in set(old) | set(manifest) if k != "objects_dir" and old.get(k) != manifest.get(k))
+        if changed:
+            raise RecipeError(f"{out} holds recipes of scenes generated with different {', '.join(changed)}; "
+                              "pack into a new directory")
+    else:
+        atomic_files.save_json(out / "manifest.json", manifest)
+    by_block = {}
+    for f in sorted(src.glob("*.npz")):
+        if f.stem.isdigit():
+            by_block.setdefault(int(f.stem) // BLOCK * BLOCK, []).append(f)
+    written, held = 0, 0
+    firsts = sorted(set(by_block) | {int(p.stem.split("_")[1]) for p in out.glob("recipes_*.npz")})
+    for first in firsts:
+        path = _block_path(out, first)
+        recipes = read_block(path) if path.exists() else {}
+        new = [f for f in by_block.get(first, []) if int(f.stem) not in recipes]
+        if new:
+            recipes.update({int(f.stem): _recipe_of(f) for f in new})
+            _write_block(path, recipes)
+            written += 1
+        held += len(recipes)
+    return dict(scenes=held, written=written)
+
+
+@dataclass(frozen=True)
+class RestoreTask:
+    scene: SceneTask
+    recipe: dict
+
+
+def restore_scene(task: RestoreTask):
+    """Worker: ("ok", arrays) or ("error", message)."""
+    try:
+        r = task.recipe
+        objects_dir = pathlib.Path(task.scene.objects_dir)
+        tables = [load_table(objects_dir / f"{n}.npz") for n in r["object_names"]]
+        specs = [object_from_table(t, task.scene.mesh_dirs) for t in tables]
+        poses = list(np.asarray(r["X_task_object"], np.float64))
+        views = list(np.asarray(r["T_task_camera"], np.float64))
+        scene = label_scene(task.scene, tables, specs, poses, views)
+        scene.update(arrangement=np.asarray(r["arrangement"]), n_objects_requested=np.asarray(r["n_objects_requested"]))
+        if int(scene["seed"]) != int(r["seed"]):
+            return "error", (f"scene {task.scene.index}: recipe seed {int(r['seed'])} is not the seed "
+                             f"{int(scene['seed'])} of the manifest's master seed: the recipes are corrupt")
+        return "ok", scene
+    except Exception as e:  # reported; the other scenes go on
+        return "error", f"scene {task.scene.index}: {type(e).__name__}: {e}"
+
+
+def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=None, progress=True) -> dict:
+    """Write the scene files of recipe_dir that out_dir lacks.
+    -> {restored, differing (labels unlike the recorded digest), errors (messages), scenes}."""
+    src = pathlib.Path(recipe_dir)
+    if not (src / "manifest.json").exists():
+        raise RecipeError(f"{src} holds no recipes (no manifest.json): make them with `recipes pack`")
+    manifest = json.loads((src / "manifest.json").read_text())
+    objects_dir = (pathlib.Path(objects_out_dir) / "objects" if objects_out_dir
+                   else pathlib.Path(manifest["objects_dir"]))
+    names = tuple(usable_tables(objects_dir)) if objects_dir.is_dir() else ()
+    if hashlib.sha256("\n".join(names).encode()).hexdigest() != manifest["object_pool_sha256"]:
+        raise RecipeError(f"the grasp tables in {objects_dir} ({len(names)} usable) are not the "
+                          f"{manifest['object_pool_size']} the scenes were made from: give --objects the "
+                          "objects stage's output they were generated with")
+    store = SceneStore(out_dir)
+    store.dir.mkdir(parents=True, exist_ok=True)
+    atomic_files.remove_stale_temporaries(store.dir)
+    here = dict(manifest, objects_dir=str(objects_dir.resolve()))
+    mpath = store.dir / "manifest.json"
+    if mpath.exists():
+        old = json.loads(mpath.read_text())
+        if old != here:
+            changed = sorted(k for k in here if old.get(k) != here[k])
+            raise RecipeError(f"{store.dir} holds scenes generated with different {', '.join(changed)}; "
+                              "restore into a new directory")
+    else:
+        atomic_files.save_json(mpath, here)
+    recipes = {}
+    for block in sorted(src.glob("recipes_*.npz")):
+        recipes.update(read_block(block))
+    tasks = [RestoreTask(SceneTask(i, manifest["seed"], str(objects_dir), names, tuple(str(d) for d in mesh_dirs),
+                                   label_pose=manifest["label_pose"], symmetry=manifest["symmetry"],
+                                   mirrors=manifest["mirrors"], execution_check=manifest["execution_check"],
+                                   approach_m=float(r["approach_m"])), r)
+             for i, r in sorted(recipes.items()) if not store.path(i).exists()]
+    errors, differing = [], []
+
+    def on_result(task, result):
+        status, payload = result
+        if status != "ok":
+            errors.append(payload)
+            return
+        if label_digest(payload) != task.recipe["label_digest"]:
+            differing.append(task.scene.index)
+        atomic_files.save_npz(store.path(task.scene.index), **payload)
+
+    if tasks:
+        with make_executor(workers) as ex:
+            run_tasks(ex, restore_scene, tasks, on_result, desc="restore scenes", progress=progress)
+    return dict(scenes=len(recipes), restored=len(tasks) - len(errors), differing=sorted(differing), errors=errors)
