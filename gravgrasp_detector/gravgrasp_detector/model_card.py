@@ -161,7 +161,7 @@ def human_notes(existing_card):
     return HUMAN_PLACEHOLDER
 
 
-def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, argv=None):
+def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, argv=None, recipes=None):
     """The card as Markdown text."""
     run_dir = pathlib.Path(run_dir)
     history = load_history(run_dir)
@@ -201,6 +201,12 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
                  f"{td.get('scenes_val', '?')} validation scenes (split by scene, seed {td.get('seed', '?')}) and "
                  f"{td.get('labels_train', '?')} labelled voxels in its training scenes (after the label subset).")
     tdir = tables_dir_for(data_dir, tables) if data_dir else None
+    if recipes:  # scene files are too big to commit; their recipes are not
+        objects_out = tdir.parent if tdir is not None and tdir.name == "objects" else tdir  # restore adds objects/
+        lines.append(f"- the scene files are not committed: `{recipes}` holds their recipes (what the physics "
+                     f"decided per scene), and `python -m sim_bridge.datagen recipes restore {recipes} {data_dir} "
+                     f"--objects {objects_out or 'TABLES'} --meshes ../shared/meshes/vgn_train` rebuilds them "
+                     "(~1 CPU-s a scene).")
     if tdir is None:
         lines.append("- grasp tables: not found (no scenes/manifest.json with objects_dir; pass --tables DIR).")
     else:
@@ -272,6 +278,9 @@ def main(argv=None):
     p.add_argument("--qualitative", default=None,
                    help="directory of `make qualitative` PNGs (default out/qualitative/<model stem>)")
     p.add_argument("--out", default=None, help="card path (default: <model dir>/<model stem>.md)")
+    p.add_argument("--recipes", default=None,
+                   help="committed scene recipes the scene files can be rebuilt from (sim_bridge `datagen recipes`), "
+                        "e.g. models/scene_recipes_v3; named on the card so a reader can rebuild the data")
     args = p.parse_args(argv)
     run = pathlib.Path(args.run)
     model = pathlib.Path(args.model) if args.model else run / "model.pt"
@@ -283,7 +292,7 @@ def main(argv=None):
                 and model_file.file_sha256(model) != model_file.file_sha256(run_model):
             raise CardError(f"{model} is not the model of {run} (sha256 differs from {run_model}): copy that "
                             "model.pt there, or give the run directory that produced this model")
-        text = render_card(run, model, card, qualitative, args.tables, argv)
+        text = render_card(run, model, card, qualitative, args.tables, argv, args.recipes)
     except (CardError, model_file.ModelFileError) as err:
         print(f"model_card: {err}", file=sys.stderr)
         return 2

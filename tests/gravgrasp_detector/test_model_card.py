@@ -70,6 +70,10 @@ def test_card_has_metrics_data_command_and_machine(run):
     assert f"median {(first + second) / 2:.1f} s, slowest {max(first, second):.1f} s (epoch {slow})" in card
     assert f"`{model_file.file_sha256(model)}`" in card
     assert "_Not run yet: no PNGs" in card and model_card.HUMAN_PLACEHOLDER in card
+    assert "recipes restore" not in card  # named only when --recipes says where they are
+    with_recipes = _card(run, "--recipes", "models/scene_recipes_v9")
+    restore = f"`python -m sim_bridge.datagen recipes restore models/scene_recipes_v9 {recorded['data']} "
+    assert f"{restore}--objects {root / 'tables'} --meshes" in with_recipes  # the objects stage's output
     # the curve is copied beside the card (a clone has no out/) and linked there
     copy = model.parent / "gravgrasp_training_curve.png"
     assert copy.read_bytes() == (out / "training_curve.png").read_bytes()

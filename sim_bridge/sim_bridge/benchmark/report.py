@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
 
 import numpy as np
 
@@ -108,7 +109,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     atomic_files.save_json(out / "results.json", rows)
     comparisons = compare_to(rows)
     atomic_files.save_json(out / "comparisons.json", comparisons)
-    objects = (f"procedural (seed {PROCEDURAL_SEED})" if not meshes_dir else f"meshes in {meshes_dir}"
+    objects = (f"procedural (seed {PROCEDURAL_SEED})" if not meshes_dir else f"meshes in {os.path.relpath(os.path.realpath(meshes_dir))}"
                + (f", only the {len(only)} listed in --only" if only is not None else ""))
     expected = len(ids)
     lines = ["# Clutter-removal benchmark against object weight", "",

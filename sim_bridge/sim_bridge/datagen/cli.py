@@ -293,7 +293,7 @@ def _run_recipes(args):
         print(e)
     if s["differing"]:
         print(f"{len(s['differing'])} rebuilt scenes have labels unlike the recorded ones (rounding on another "
-              f"CPU or library version; kept): {', '.join(map(str, s['differing'][:20]))}")
+              f"CPU or library version, or grasp tables changed since they were packed; kept): {', '.join(map(str, s['differing'][:20]))}")
     print(f"restore: scenes={s['scenes']} restored={s['restored']} differing={len(s['differing'])} "
           f"error={len(s['errors'])}")
     return 1 if s["errors"] else 0
