@@ -9,6 +9,7 @@ import pytest
 
 from sim_bridge.datagen import scene_recipes
 from sim_bridge.datagen.cli import main as datagen
+from sim_bridge.datagen.scene_dataset import run_scene_stage
 
 from test_datagen_scene_stage import grasp_data, run  # noqa: F401  (a module fixture, shared)
 
@@ -91,3 +92,61 @@ def test_restore_refuses_other_grasp_tables_and_missing_recipes(grasp_data, made
     assert "holds no recipes" in capsys.readouterr().err
     assert datagen(["recipes", "pack", str(tmp_path / "nothing"), str(recipes)]) == 2
     assert "has no manifest.json" in capsys.readouterr().err
+
+
+def _edit_tables(src, dst, edit):
+    shutil.copytree(src, dst)
+    for f in sorted((dst / "objects").glob("*.npz")):
+        t = dict(np.load(f))
+        edit(t)
+        np.savez(f, **t)
+
+
+def test_relabel_gives_the_same_scenes_the_labels_of_other_tables(grasp_data, made, tmp_path, capsys):  # noqa: F811
+    recipes = tmp_path / "recipes"
+    scene_recipes.pack(made, recipes)
+
+    def fewer_held(t):  # tables changed after the scenes were made: every other held grasp dropped
+        t["grasped"] = t["grasped"] & (np.arange(len(t["grasped"])) % 2 == 0)
+    other = tmp_path / "other"
+    _edit_tables(grasp_data / "objects", other, fewer_held)
+    args = ["recipes", "restore", str(recipes), str(tmp_path / "relabelled"), "--objects", str(other),
+            "--meshes", str(grasp_data / "meshes"), "--no-progress"]
+    assert datagen(args) == 2  # same object pool, other tables: not a silent relabel
+    err = capsys.readouterr().err.strip()
+    assert "3 grasp tables in" in err and "--relabel" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "relabelled").exists()
+
+    assert datagen(args + ["--relabel"]) == 0
+    out = capsys.readouterr().out
+    assert "relabelled 4 scenes: labels per scene median" in out and "restored=4" in out
+    total = {"before": 0, "after": 0}
+    for i in range(4):
+        with np.load(made / "scenes" / f"{i:06d}.npz") as a, np.load(tmp_path / "relabelled" / "scenes" / f"{i:06d}.npz") as b:
+            np.testing.assert_allclose(b["tsdf"], a["tsdf"], atol=1e-6)  # the same settled scene ...
+            assert np.array_equal(b["X_task_object"], a["X_task_object"])
+            total["before"] += len(a["label_score"])
+            total["after"] += len(b["label_score"])
+            assert set(b["label_grasp"] % 2) <= {0}  # ... labelled from the held grasps that are left
+    assert 0 < total["after"] < total["before"], total
+
+    # the relabelled directory is the scene stage's own, on the other tables: nothing redone
+    relabelled = tmp_path / "relabelled"
+    before = {f.name: f.stat().st_mtime_ns for f in (relabelled / "scenes").glob("*.npz")}
+    s = run_scene_stage(relabelled, other, [grasp_data / "meshes"], 4, seed=5, workers=1, max_objects=3,
+                        max_views=3, progress=False)
+    assert s["done"] == 4 and {f.name: f.stat().st_mtime_ns for f in (relabelled / "scenes").glob("*.npz")} == before
+    # its recipes restore it exactly with those tables, and old recipes refuse to take it
+    assert datagen(["recipes", "pack", str(relabelled), str(recipes)]) == 2
+    assert "different tables" in capsys.readouterr().err
+    assert datagen(["recipes", "pack", str(relabelled), str(tmp_path / "recipes2")]) == 0
+    assert datagen(["recipes", "restore", str(tmp_path / "recipes2"), str(tmp_path / "again"), "--objects",
+                    str(other), "--meshes", str(grasp_data / "meshes"), "--no-progress"]) == 0
+    assert "restored=4 differing=0 error=0" in capsys.readouterr().out
+
+    def reshaped(t):  # another mesh under the same name: the settled poses no longer apply
+        t["shape_sha256"] = np.asarray("f" * 64)
+    _edit_tables(grasp_data / "objects", tmp_path / "reshaped", reshaped)
+    assert datagen(["recipes", "restore", str(recipes), str(tmp_path / "r2"), "--objects",
+                    str(tmp_path / "reshaped"), "--relabel"]) == 2
+    assert "another shape" in capsys.readouterr().err

@@ -11,7 +11,7 @@
 All are resumable (rerun the same command after a kill: finished outputs are
 kept, partial ones never exist thanks to atomic writes), deterministic for a
 seed (per-task seeds derive from --seed and the task id), and parallel: local
-worker processes (--workers) or a Dask cluster (--scheduler tcp://host:8786; the
+worker processes (--workers) or, for objects and scenes, a Dask cluster (--scheduler tcp://host:8786; the
 workers need this package, the mesh directory and the output directory on a
 shared path).
 """
@@ -236,6 +236,9 @@ def main(argv=None):
                     help="output directory of the objects stage the scenes were made from (default: the one "
                          "recorded in the recipes)")
     rs.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
+    rs.add_argument("--relabel", action="store_true",
+                    help="label the scenes with --objects tables other than those that labelled them (grown "
+                         "tables, the same objects): the settled scenes are kept, the labels are new")
     rs.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     rs.add_argument("--no-progress", action="store_true")
 
@@ -285,7 +288,7 @@ def _run_recipes(args):
             print(f"recipes: scenes={s['scenes']} blocks_written={s['written']} ({args.recipes})")
             return 0
         s = scene_recipes.restore(args.recipes, args.out, args.objects, args.meshes, args.workers,
-                                  progress=not args.no_progress)
+                                  progress=not args.no_progress, relabel=args.relabel)
     except scene_recipes.RecipeError as e:
         print(f"datagen recipes: {e}", file=sys.stderr)
         return 2
@@ -294,6 +297,10 @@ def _run_recipes(args):
     if s["differing"]:
         print(f"{len(s['differing'])} rebuilt scenes have labels unlike the recorded ones (rounding on another "
               f"CPU or library version, or grasp tables changed since they were packed; kept): {', '.join(map(str, s['differing'][:20]))}")
+    if args.relabel and s["label_counts"]:
+        before, after = np.array(list(s["label_counts"].values())).T
+        print(f"relabelled {len(before)} scenes: labels per scene median {np.median(before):g} -> "
+              f"{np.median(after):g}, mean {before.mean():.1f} -> {after.mean():.1f}")
     print(f"restore: scenes={s['scenes']} restored={s['restored']} differing={len(s['differing'])} "
           f"error={len(s['errors'])}")
     return 1 if s["errors"] else 0

@@ -20,6 +20,11 @@ scene files that are missing, with the manifest that lets `datagen scenes` resum
 A rebuilt scene whose labels differ from the recorded digest (another CPU or library
 version can move a grasp across a voxel boundary or a collision margin by rounding) is
 kept, and counted: its labels are still those of its own objects and TSDF.
+
+The recipes also record which grasp tables labelled the scenes (per object: shape,
+candidates, held grasps). `restore` refuses other tables, unless asked to `relabel`:
+then the same settled scenes get the labels of the new tables (grown tables, say) into a
+new directory, with no physics redone; the objects' shapes must be unchanged.
 """
 from __future__ import annotations
 
@@ -54,6 +59,28 @@ def label_digest(scene) -> str:
         h.update(f"{k}{a.dtype.str}{a.shape}".encode())
         h.update(a.tobytes())
     return h.hexdigest()[:16]
+
+
+def tables_fingerprint(objects_dir) -> dict:
+    """{name: "shape:candidates:held"} of the usable grasp tables in objects_dir: what the
+    labels of a scene depend on, cheap to compare (a grown table changes its counts)."""
+    out = {}
+    for name in usable_tables(objects_dir):
+        with np.load(pathlib.Path(objects_dir) / f"{name}.npz") as t:
+            shape = str(t["shape_sha256"])[:16] if "shape_sha256" in t.files else "-"
+            out[name] = f"{shape}:{len(t['grasped'])}:{int(t['grasped'].sum())}"
+    return out
+
+
+def _table_changes(old: dict, new: dict, names) -> tuple:
+    """-> (names whose shape differs or table is missing, names whose counts differ)."""
+    shape, counts = [], []
+    for n in sorted(set(names)):
+        if n not in new or old[n].split(":")[0] != new[n].split(":")[0]:
+            shape.append(n)
+        elif old[n] != new[n]:
+            counts.append(n)
+    return shape, counts
 
 
 def _scene_dir(path):
@@ -123,10 +150,13 @@ def pack(scene_dir, recipe_dir) -> dict:
     if not manifest_path.exists():
         raise RecipeError(f"{src} has no manifest.json: give the --out directory of `datagen scenes`")
     manifest = json.loads(manifest_path.read_text())
+    if pathlib.Path(manifest["objects_dir"]).is_dir():  # the tables that labelled them
+        manifest["tables"] = tables_fingerprint(manifest["objects_dir"])
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists():
         old = json.loads((out / "manifest.json").read_text())
-        changed = sorted(k for k in set(old) | set(manifest) if k != "objects_dir" and old.get(k) != manifest.get(k))
+        changed = sorted(k for k in set(old) | set(manifest) if k != "objects_dir" and old.get(k) != manifest.get(k)
+                         and not (k == "tables" and k not in old))  # recipes packed before tables were recorded
         if changed:
             raise RecipeError(f"{out} holds recipes of scenes generated with different {', '.join(changed)}; "
                               "pack into a new directory")
@@ -175,24 +205,51 @@ def restore_scene(task: RestoreTask):
         return "error", f"scene {task.scene.index}: {type(e).__name__}: {e}"
 
 
-def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=None, progress=True) -> dict:
-    """Write the scene files of recipe_dir that out_dir lacks.
-    -> {restored, differing (labels unlike the recorded digest), errors (messages), scenes}."""
+def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=None, progress=True,
+            relabel=False) -> dict:
+    """Write the scene files of recipe_dir that out_dir lacks. With relabel, the grasp
+    tables may be others than those that labelled the scenes (same object shapes).
+    -> {restored, differing (labels unlike the recorded digest), errors (messages), scenes,
+        label_counts ({index: (recorded, now)} of the scenes written)}."""
     src = pathlib.Path(recipe_dir)
     if not (src / "manifest.json").exists():
         raise RecipeError(f"{src} holds no recipes (no manifest.json): make them with `recipes pack`")
     manifest = json.loads((src / "manifest.json").read_text())
+    recorded_tables = manifest.pop("tables", None)
     objects_dir = (pathlib.Path(objects_out_dir) / "objects" if objects_out_dir
                    else pathlib.Path(manifest["objects_dir"]))
     names = tuple(usable_tables(objects_dir)) if objects_dir.is_dir() else ()
-    if hashlib.sha256("\n".join(names).encode()).hexdigest() != manifest["object_pool_sha256"]:
-        raise RecipeError(f"the grasp tables in {objects_dir} ({len(names)} usable) are not the "
-                          f"{manifest['object_pool_size']} the scenes were made from: give --objects the "
-                          "objects stage's output they were generated with")
+    recipes = {}
+    for block in sorted(src.glob("recipes_*.npz")):
+        recipes.update(read_block(block))
+    pool_sha256 = hashlib.sha256("\n".join(names).encode()).hexdigest()
+    if relabel:
+        if recorded_tables is None:
+            raise RecipeError(f"{src} does not record the tables its scenes were labelled with (packed before "
+                              "they were): pack them again from their scene files to relabel")
+        used = {str(n) for r in recipes.values() for n in r["object_names"]}
+        shape, _ = _table_changes(recorded_tables, tables_fingerprint(objects_dir) if names else {}, used)
+        if shape:
+            raise RecipeError(f"{len(shape)} objects of the scenes have no usable table or another shape in "
+                              f"{objects_dir} (e.g. {shape[0]}): relabelling needs the same objects, since their "
+                              "settled poses came from the physics")
+    else:
+        if pool_sha256 != manifest["object_pool_sha256"]:
+            raise RecipeError(f"the grasp tables in {objects_dir} ({len(names)} usable) are not the "
+                              f"{manifest['object_pool_size']} the scenes were made from: give --objects the "
+                              "objects stage's output they were generated with")
+        if recorded_tables is not None:
+            shape, counts = _table_changes(recorded_tables, tables_fingerprint(objects_dir), recorded_tables)
+            if shape or counts:
+                raise RecipeError(f"{len(shape) + len(counts)} grasp tables in {objects_dir} differ from those "
+                                  f"that labelled these scenes (e.g. {(shape + counts)[0]}): give --objects those, "
+                                  "or pass --relabel and a new output directory to label the scenes with these")
     store = SceneStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
     atomic_files.remove_stale_temporaries(store.dir)
-    here = dict(manifest, objects_dir=str(objects_dir.resolve()))
+    # what `datagen scenes` writes: so it resumes here (with the new pool when relabelled)
+    here = dict(manifest, objects_dir=str(objects_dir.resolve()), object_pool_sha256=pool_sha256,
+                object_pool_size=len(names))
     mpath = store.dir / "manifest.json"
     if mpath.exists():
         old = json.loads(mpath.read_text())
@@ -202,26 +259,25 @@ def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=Non
                               "restore into a new directory")
     else:
         atomic_files.save_json(mpath, here)
-    recipes = {}
-    for block in sorted(src.glob("recipes_*.npz")):
-        recipes.update(read_block(block))
     tasks = [RestoreTask(SceneTask(i, manifest["seed"], str(objects_dir), names, tuple(str(d) for d in mesh_dirs),
                                    label_pose=manifest["label_pose"], symmetry=manifest["symmetry"],
                                    mirrors=manifest["mirrors"], execution_check=manifest["execution_check"],
                                    approach_m=float(r["approach_m"])), r)
              for i, r in sorted(recipes.items()) if not store.path(i).exists()]
-    errors, differing = [], []
+    errors, differing, label_counts = [], [], {}
 
     def on_result(task, result):
         status, payload = result
         if status != "ok":
             errors.append(payload)
             return
-        if label_digest(payload) != task.recipe["label_digest"]:
+        if not relabel and label_digest(payload) != task.recipe["label_digest"]:
             differing.append(task.scene.index)
+        label_counts[task.scene.index] = (int(task.recipe["label_count"]), len(payload["label_score"]))
         atomic_files.save_npz(store.path(task.scene.index), **payload)
 
     if tasks:
         with make_executor(workers) as ex:
             run_tasks(ex, restore_scene, tasks, on_result, desc="restore scenes", progress=progress)
-    return dict(scenes=len(recipes), restored=len(tasks) - len(errors), differing=sorted(differing), errors=errors)
+    return dict(scenes=len(recipes), restored=len(tasks) - len(errors), differing=sorted(differing), errors=errors,
+                label_counts=label_counts)
