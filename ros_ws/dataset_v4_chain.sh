@@ -10,6 +10,15 @@
 #    table is rewritten when its 16 new blocks are done: commit them as they come
 #      git add models/grasp_tables_v3 && git commit -m "Grasp tables v3: ..."
 #    (blocks in flight live in models/grasp_tables_v3/objects/.parts, ignored by git).
+# 2. out/scenes_v4: the 5,000 v3 scenes (models/scene_recipes_v3) relabelled with those tables,
+#    no physics (`recipes restore --relabel`, ~1 CPU-s a scene); nothing else to commit: the
+#    recipes and the tables rebuild it on any machine.
+# 3. the data report (objects=, grasps=, power_fraction=, labels_per_scene_median=);
+# 4. all five models on it, the same schedule as v3, into out/training_v4/<variant>
+#    (copy them to models/ with their cards by hand, and commit them: a retrained model has
+#    another sha256, and the benchmark below redoes every round of a model it has not seen);
+# 5. the held-out benchmark of the five into sim_bridge/results/heldout_v4 (commit its rounds
+#    as they come), then unseen procedural objects into sim_bridge/results/procedural_v4.
 set -euo pipefail
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
@@ -18,4 +27,43 @@ echo "[chain] $(date -u +%FT%TZ) tables v3: grow to 384 candidates"
 python -m sim_bridge.datagen objects --meshes "$meshes" --exclude models/vgn_heldout_meshes.txt --procedural 100 \
   --limit 220 --grasps-per-object 384 --sim-setting time_step_s=0.001 --sim-setting max_force_n=100 \
   --sim-setting force_ramp_rate_n_s=800 --seed 0 --out models/grasp_tables_v3 --workers "$workers" --no-progress
+
+echo "[chain] $(date -u +%FT%TZ) scenes v4: the v3 scenes relabelled"
+python -m sim_bridge.datagen recipes restore models/scene_recipes_v3 out/scenes_v4 --objects models/grasp_tables_v3 \
+  --meshes "$meshes" --workers "$workers" --no-progress --relabel
+
+echo "[chain] $(date -u +%FT%TZ) report"
+python -m sim_bridge.datagen.data_report models/grasp_tables_v3 --scenes out/scenes_v4
+
+shipped() {  # shipped VARIANT FILE: models/FILE is the model that out/training_v4/VARIANT trained
+  [ -f "models/$2" ] && python -c "import sys; from gravgrasp_detector import model_file
+cmd = model_file.load_model(sys.argv[1])[1].get('training_data', {}).get('command', '')
+sys.exit(0 if f'--out {sys.argv[2]} ' in cmd + ' ' else 1)" "models/$2" "out/training_v4/$1"
+}
+train() {  # train VARIANT FILE [OPTION]: one model into out/training_v4/VARIANT (resumes per epoch)
+  if shipped "$1" "$2"; then echo "[chain] $1: models/$2 is its model (shipped): not retrained"; return; fi
+  echo "[chain] $(date -u +%FT%TZ) train $1"
+  python -m gravgrasp_detector.training --data out/scenes_v4 --out "out/training_v4/$1" --epochs 15 \
+    --threads "$workers" --no-progress --negative-weight=250 "${@:3}"
+}
+variants=(ours:gravgrasp.pt binary:gravgrasp_binary.pt:--target=binary
+          precision_only:gravgrasp_precision_only.pt:--data-subset=precision-only
+          ey_ez:gravgrasp_ey_ez.pt:--rotation=ey-ez quat:gravgrasp_quat.pt:--rotation=quat)
+for v in "${variants[@]}"; do IFS=: read -r variant file option <<< "$v"; train "$variant" "$file" $option; done
+
+models=()  # methods of the benchmark: models/ once shipped (a lost out/ cannot change their sha256)
+for pair in ours:ours binary:binary ours_precision:precision_only ours_ey_ez:ey_ez ours_quat:quat; do
+  method="${pair%%:*}"; variant="${pair#*:}"
+  for v in "${variants[@]}"; do [ "${v%%:*}" = "$variant" ] && { file="${v#*:}"; file="${file%%:*}"; }; done
+  if shipped "$variant" "$file"; then models+=(--model "$method=models/$file")
+  else models+=(--model "$method=out/training_v4/$variant/model.pt"); fi
+done
+bench_size=(--scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5)  # the Makefile's BENCH_SIZE
+echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes: ${models[*]}"
+python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
+  --out sim_bridge/results/heldout_v4 --workers "$workers" --no-progress "${bench_size[@]}" "${models[@]}" \
+  || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
+echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
+python -m sim_bridge.benchmark.clutter_benchmark --out sim_bridge/results/procedural_v4 --workers "$workers" \
+  --no-progress "${bench_size[@]}" "${models[@]}"
 echo "[chain] $(date -u +%FT%TZ) done"
