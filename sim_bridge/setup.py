@@ -29,6 +29,7 @@ setup(
             "bench_datagen = sim_bridge.datagen.bench_datagen:main",
             "label_settings_study = sim_bridge.datagen.label_settings_study:main",
             "symmetry_study = sim_bridge.datagen.symmetry_study:main",
+            "table_size_study = sim_bridge.datagen.table_size_study:main",
             "label_execution_study = sim_bridge.benchmark.label_execution_study:main",
         ],
     },

@@ -150,3 +150,24 @@ def test_relabel_gives_the_same_scenes_the_labels_of_other_tables(grasp_data, ma
     assert datagen(["recipes", "restore", str(recipes), str(tmp_path / "r2"), "--objects",
                     str(tmp_path / "reshaped"), "--relabel"]) == 2
     assert "another shape" in capsys.readouterr().err
+
+
+def test_table_size_study_relabels_with_cut_tables(grasp_data, made, tmp_path, capsys):  # noqa: F811
+    from sim_bridge.datagen import table_size_study
+    recipes = tmp_path / "recipes"
+    scene_recipes.pack(made, recipes)
+    out = tmp_path / "study.json"
+    argv = ["--recipes", str(recipes), "--tables", str(grasp_data / "objects"), "--meshes",
+            str(grasp_data / "meshes"), "--sizes", "20,80,1000", "--every", "1", "--workers", "1",
+            "--out", str(out), "--no-progress"]
+    assert table_size_study.main(argv) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    counts = {int(i): c for i, c in __import__("json").loads(out.read_text())["counts"].items()}
+    recorded = {i: int(r["label_count"]) for i, r in scene_recipes.read_block(next(recipes.glob("*.npz"))).items()}
+    assert sorted(counts) == [0, 1, 2, 3]
+    for i, c in counts.items():
+        assert c["20"] <= c["80"] <= c["1000"] == recorded[i]  # uncut: the scene's own labels
+    assert sum(c["20"] for c in counts.values()) < sum(recorded.values())
+    assert last == f"labels_per_scene_median_at_1000={np.median(list(recorded.values())):g}"
+    assert table_size_study.main(argv) == 0  # resumes: nothing left to do, same answer
+    assert capsys.readouterr().out.strip().splitlines()[-1] == last
