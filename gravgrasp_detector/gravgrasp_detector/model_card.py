@@ -203,10 +203,15 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
     tdir = tables_dir_for(data_dir, tables) if data_dir else None
     if recipes:  # scene files are too big to commit; their recipes are not
         objects_out = tdir.parent if tdir is not None and tdir.name == "objects" else tdir  # restore adds objects/
+        # recipes packed from scenes of other tables (grown since): the scenes were relabelled
+        packed_from = json.loads((pathlib.Path(recipes) / "manifest.json").read_text()).get("objects_dir", "") \
+            if (pathlib.Path(recipes) / "manifest.json").is_file() else ""
+        relabel = (" --relabel" if objects_out is not None and packed_from
+                   and pathlib.Path(packed_from).parent.name != objects_out.resolve().name else "")
         lines.append(f"- the scene files are not committed: `{recipes}` holds their recipes (what the physics "
                      f"decided per scene), and `python -m sim_bridge.datagen recipes restore {recipes} {data_dir} "
-                     f"--objects {objects_out or 'TABLES'} --meshes ../shared/meshes/vgn_train` rebuilds them "
-                     "(~1 CPU-s a scene).")
+                     f"--objects {objects_out or 'TABLES'} --meshes ../shared/meshes/vgn_train{relabel}` rebuilds "
+                     "them (~1 CPU-s a scene).")
     if tdir is None:
         lines.append("- grasp tables: not found (no scenes/manifest.json with objects_dir; pass --tables DIR).")
     else:

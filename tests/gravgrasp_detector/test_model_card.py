@@ -73,7 +73,12 @@ def test_card_has_metrics_data_command_and_machine(run):
     assert "recipes restore" not in card  # named only when --recipes says where they are
     with_recipes = _card(run, "--recipes", "models/scene_recipes_v9")
     restore = f"`python -m sim_bridge.datagen recipes restore models/scene_recipes_v9 {recorded['data']} "
-    assert f"{restore}--objects {root / 'tables'} --meshes" in with_recipes  # the objects stage's output
+    assert f"{restore}--objects {root / 'tables'} --meshes ../shared/meshes/vgn_train` rebuilds" in with_recipes
+    # recipes packed from scenes of other tables: the card's scenes are those relabelled
+    other = root / "recipes_of_other_tables"
+    other.mkdir(exist_ok=True)
+    (other / "manifest.json").write_text(json.dumps({"objects_dir": "/x/grasp_tables_v1/objects"}))
+    assert "vgn_train --relabel` rebuilds" in _card(run, "--recipes", str(other))
     # the curve is copied beside the card (a clone has no out/) and linked there
     copy = model.parent / "gravgrasp_training_curve.png"
     assert copy.read_bytes() == (out / "training_curve.png").read_bytes()
