@@ -72,7 +72,7 @@ def volume_grid(msg, metadata):
     return grid, T
 
 
-def startup_lines(model_path, metadata, precision, threads):
+def startup_lines(model_path, metadata, precision, threads, rank_by=None):
     """What the node tells a user at start-up: one short line per fact (the model's
     whole training summary is in its card, models/<name>.md)."""
     root = os.environ.get("GRAVGRASP_ROOT", os.getcwd())
@@ -81,8 +81,12 @@ def startup_lines(model_path, metadata, precision, threads):
     lines = [f"model: {shown}",
              f"model input: {grid['resolution']}^3 TSDF, {grid['voxel_size_m'] * 1e3:g} mm voxels",
              f"model output: {model_file.training_target(metadata)}, rotation {net['rotation_representation']}"]
-    if model_file.ranking(metadata) == "validness":
-        lines.append("grasps ranked by validness (a binary model: no score in N)")
+    rank_by = rank_by or model_file.ranking(metadata)
+    if rank_by == "validness":
+        lines.append("grasps ranked by validness" + (" (a binary model: no score in N)"
+                                                     if model_file.training_target(metadata) == "binary" else ""))
+    elif rank_by == "expected_score":
+        lines.append("grasps ranked by validness x score; each carries its score in N")
     if "scenes_train" in td:
         lines.append(f"model trained: {td['scenes_train']} + {td.get('scenes_val', 0)} scenes"
                      + (f" from {td['data']}" if td.get("data") else "")
@@ -108,6 +112,10 @@ class DetectNode(Node):
         p("max_grasps", 20, int_range("Most grasps per volume", 1, 1000))
         p("surface_distance_voxels", 6, int_range("Candidates lie within this many voxels of an observed surface", 1, 40))
         p("nms_radius_voxels", 2, int_range("Non-maximum suppression radius, voxels (0 = off)", 0, 10))
+        ranking = p("ranking", "model", described(
+            "How grasps are ranked among those past the thresholds: 'model' (a score model by its "
+            "gravity-rejection score, the paper's rule; a binary model by validness), 'score', "
+            "'expected_score' (validness x score), or 'validness'", read_only=True)).value
         p("pregrasp_distance_m", 0.05, float_range("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
         threads = p("torch_threads", 1, int_range(
             "Intra-op threads of the network. 1 by default: on a small CPU shared with the tsdf "
@@ -132,7 +140,7 @@ class DetectNode(Node):
         self.model_name = os.path.basename(self.model_path)
         # A binary model (trained with --target binary) is ranked by its validness, a
         # success probability; its grasps carry gravity_rejection_score 0 (no newtons).
-        self.rank_by = model_file.ranking(self.metadata)
+        self.rank_by = model_file.ranking(self.metadata, ranking)  # ModelFileError -> main
         self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
         self.grasps_pub = self.create_publisher(GraspArray, "grasps", 10)
         self.markers_pub = self.create_publisher(MarkerArray, "grasp_markers", 10)
@@ -147,7 +155,7 @@ class DetectNode(Node):
         self._last_latency_log = -float("inf")
         self._worker = threading.Thread(target=self._run, name="detect", daemon=True)
         self._worker.start()
-        for line in startup_lines(self.model_path, self.metadata, self.precision, threads):
+        for line in startup_lines(self.model_path, self.metadata, self.precision, threads, self.rank_by):
             self.get_logger().info(line)
 
     def _on_volume(self, msg):
@@ -192,7 +200,7 @@ class DetectNode(Node):
         pregrasp = float(param("pregrasp_distance_m"))
         out.grasps = [
             GraspMsg(pose=pose_msg_from_matrix(g.pose), validness=g.validness,
-                     gravity_rejection_score=g.score_n if self.rank_by == "score" else 0.0,
+                     gravity_rejection_score=g.score_n if self.rank_by != "validness" else 0.0,
                      voxel_index=list(g.voxel_index), pregrasp_distance_m=pregrasp)
             for g in grasps
         ]
@@ -204,7 +212,7 @@ class DetectNode(Node):
         now = time.monotonic()
         if now - self._last_latency_log >= 5.0:  # the first one, then every 5 s
             self._last_latency_log = now
-            best = "" if not grasps else (f", best {grasps[0].score_n:.2f} N" if self.rank_by == "score"
+            best = "" if not grasps else (f", best {grasps[0].score_n:.2f} N" if self.rank_by != "validness"
                                           else f", best validness {grasps[0].validness:.2f}")
             self.get_logger().info(
                 f"{len(grasps)} grasps{best}; latency {latency_s * 1e3:.1f} ms "

@@ -40,7 +40,7 @@ CLOSING_REGION_TCP = np.array([[-PAD_WIDTH_M / 2, -MAX_STROKE_M / 2, PALM_FACE_Z
                                [PAD_WIDTH_M / 2, MAX_STROKE_M / 2, FINGER_TIP_Z_M]])
 
 PRECISIONS = ("auto", "bf16", "fp32")
-RANKINGS = ("score", "validness")
+RANKINGS = ("score", "validness", "expected_score")
 
 
 @dataclass(frozen=True)
@@ -57,9 +57,11 @@ class DetectionOptions:
     # "bf16" (autocast + channels_last_3d), "fp32", or "auto" (bf16 where the CPU has
     # AMX, see bf16_faster)
     precision: str = "fp32"
-    # "score" (the gravity-rejection score [N]) or "validness" (a model trained with
-    # --target binary: its validness is its success probability);
-    # `model_file.ranking(metadata)` says which a model needs
+    # "score" (the gravity-rejection score [N]: the paper's rule), "validness" (a model
+    # trained with --target binary: its validness is its success probability), or
+    # "expected_score" (validness x score: a voxel that barely passes the threshold with a
+    # high score, which the score head was never trained at, no longer outranks a sure
+    # one); `model_file.ranking(metadata)` says which a model needs
     rank_by: str = "score"
 
     def __post_init__(self):
@@ -146,7 +148,8 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
 
     With options.rank_by "score" they are ranked by the gravity-rejection score [N], at
     least options.min_score_n; with "validness" by validness (min_score_n does not
-    apply, and each Grasp's score_n carries the validness it was ranked by).
+    apply, and each Grasp's score_n carries the validness it was ranked by); with
+    "expected_score" by validness x score (each Grasp's score_n is still the score).
 
     model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
     value convention. origin: the grid corner in the task frame (3-vector or 4x4).
@@ -165,8 +168,11 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
     half = half.float()
     score_n, validness_logit = model.score_and_validness_from_half(half)
     validness = torch.sigmoid(validness_logit[0])
+    rank_key = None
     if options.rank_by == "validness":
         score_n, options = validness[None], replace(options, min_score_n=0.0)
+    elif options.rank_by == "expected_score":
+        rank_key = score_n[0] * validness
     return select_grasps(
         grid,
         score_n[0],
@@ -176,6 +182,7 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
         voxel_size_m,
         origin,
         options,
+        rank_key,
     )
 
 
@@ -237,11 +244,13 @@ def select_grasps(
     voxel_size_m,
     origin=(0.0, 0.0, 0.0),
     options=DetectionOptions(),
+    rank_key=None,
 ):
-    """Steps 1-5 of the module doc on network outputs, ranked by ``score_n`` (options'
-    precision and rank_by are the caller's: they choose the outputs).
+    """Steps 1-5 of the module doc on network outputs, ranked (and suppressed) by
+    ``rank_key``, by default ``score_n`` (options' precision and rank_by are the caller's:
+    they choose the outputs).
 
-    grid, score_n, validness: (R, R, R) tensors; rotation_channels_at: callable
+    grid, score_n, validness, rank_key: (R, R, R) tensors; rotation_channels_at: callable
     (N, 3) long voxel indices -> (N, C) rotation channels.
     """
     max_grasps = int(options.max_grasps)
@@ -250,7 +259,8 @@ def select_grasps(
     validness = torch.as_tensor(validness).float()
     candidate = near_surface_mask(grid, options.surface_distance_voxels) & (validness >= options.validness_threshold)
     candidate &= (score_n >= options.min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
-    masked = torch.where(candidate, score_n, torch.full_like(score_n, -1.0))
+    key = score_n if rank_key is None else torch.as_tensor(rank_key).float()
+    masked = torch.where(candidate, key, torch.full_like(key, -1.0))
     r = int(options.nms_radius_voxels)
     if r > 0:
         candidate &= masked == cube_max(masked, r)
@@ -258,7 +268,7 @@ def select_grasps(
     scores = score_n[candidate]
     # rotations for a few more than max_grasps: step 5 may veto some
     ranked = 4 * max_grasps if options.min_surface_voxels > 0 else max_grasps
-    order = torch.sort(scores, descending=True, stable=True).indices[:ranked]
+    order = torch.sort(key[candidate], descending=True, stable=True).indices[:ranked]
     index, scores = index[order], scores[order]
     valid = validness[tuple(index.T)]
     if len(index) == 0:

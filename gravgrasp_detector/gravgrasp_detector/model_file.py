@@ -99,10 +99,23 @@ def training_target(metadata: dict) -> str:
     return str((metadata.get("training_data") or {}).get("target", "gravity-score"))
 
 
-def ranking(metadata: dict) -> str:
-    """How detection ranks this model's grasps (detection.DetectionOptions.rank_by):
-    "validness" for a model trained with `--target binary`, else "score"."""
-    return "validness" if training_target(metadata) == "binary" else "score"
+RANKING_CHOICES = ("model", "score", "expected_score", "validness")
+
+
+def ranking(metadata: dict, requested: str = "model") -> str:
+    """How detection ranks this model's grasps (detection.DetectionOptions.rank_by).
+    "model": "validness" for a model trained with `--target binary`, else "score" (the
+    paper's rule); "score" and "expected_score" (validness x score) need a score in N, so
+    a binary model refuses them (ModelFileError); "validness" suits any model."""
+    if requested not in RANKING_CHOICES:
+        raise ModelFileError(f"ranking {requested!r}: use one of {', '.join(RANKING_CHOICES)}")
+    binary = training_target(metadata) == "binary"
+    if requested == "model":
+        return "validness" if binary else "score"
+    if binary and requested != "validness":
+        raise ModelFileError(f"ranking {requested!r} needs a score in N, and this model was trained with "
+                             "--target binary (validness only): use ranking 'model' or 'validness'")
+    return requested
 
 
 def file_sha256(path) -> str:

@@ -264,3 +264,33 @@ def test_validness_ranking_for_a_binary_model():
         detection.DetectionOptions(rank_by="probability")
     with pytest.raises(ValueError, match="precision"):
         detection.DetectionOptions(precision="fp16")
+
+
+def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one():
+    """rank_by="expected_score": ranked (and suppressed) by validness x score; each grasp
+    still publishes its score in N."""
+    score, validness = hand_made_outputs()
+    validness[20, 20, 8] = 0.55  # 9 N, barely valid: 4.95 expected
+    validness[10, 10, 8] = 0.95  # 5 N, sure: 4.75 expected
+    validness[20, 25, 8] = 0.6  # 7 N: 4.2 expected
+    validness[21, 20, 8] = 0.5  # 8 N beside the 9 N peak: 4.0, suppressed by it
+    options = detection.DetectionOptions(min_surface_voxels=0, validness_threshold=0.5)
+    by_score = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS, options=options)
+    assert [g.score_n for g in by_score] == [9.0, 7.0, 5.0, 2.0]
+    expected = validness * score
+    by_expected = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS,
+                                          options=options, rank_key=expected)
+    assert [g.voxel_index for g in by_expected] == [(20, 20, 8), (10, 10, 8), (20, 25, 8), (30, 12, 9)]
+    assert [g.score_n for g in by_expected] == [9.0, 5.0, 7.0, 2.0]
+    # the 8 N neighbour of the 9 N peak, made sure, outranks it and suppresses it (NMS on the key)
+    validness[21, 20, 8] = 1.0
+    by_expected = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS,
+                                          options=options, rank_key=validness * score)
+    assert by_expected[0].voxel_index == (21, 20, 8) and (20, 20, 8) not in [g.voxel_index for g in by_expected]
+    # detect_grasps computes the key itself
+    torch.manual_seed(0)
+    net = networks.GraspNet().eval()
+    opts = detection.DetectionOptions(validness_threshold=0.0, max_grasps=10, rank_by="expected_score")
+    grasps = detection.detect_grasps(net, table_grid().numpy(), VS, options=opts)
+    keys = [g.validness * g.score_n for g in grasps]
+    assert grasps and keys == sorted(keys, reverse=True)

@@ -240,6 +240,27 @@ def test_missing_model_is_skipped_with_a_note(tmp_path):
         bench_rounds.resolve_methods(["oursx"], tmp_path)
 
 
+def test_a_ranking_variant_runs_its_base_methods_model_under_its_own_ranking(tmp_path):
+    save_test_model(tmp_path / "gravgrasp.pt", validness_bias=0.0)
+    other = save_test_model(tmp_path / "elsewhere.pt", validness_bias=0.0)
+    assert bench_rounds.resolve_methods(["ours_expected"], tmp_path) == {
+        "ours_expected": str((tmp_path / "gravgrasp.pt").resolve())}
+    # --model ours=PATH moves the variant with it (the v4 chain benchmarks out/training_v4 models)
+    assert bench_rounds.resolve_methods(["ours", "ours_expected"], tmp_path, {"ours": str(other)}) == {
+        "ours": str(other.resolve()), "ours_expected": str(other.resolve())}
+    model, meta = model_file.load_model(other)
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3
+    grid[10:30, 10:30, 12] = 0.5
+    p = protocol.Protocol(validness_threshold=0.0)
+    by_score = bench_rounds.make_detector(model, meta, p)((grid, 0.0075, np.zeros(3)))
+    by_expected = bench_rounds.make_detector(model, meta, p, "expected_score")((grid, 0.0075, np.zeros(3)))
+    keys = [g.validness * g.score_n for g in by_expected]
+    assert keys == sorted(keys, reverse=True) and [g.score_n for g in by_score] == sorted(
+        (g.score_n for g in by_score), reverse=True)
+    assert [g.voxel_index for g in by_expected] != [g.voxel_index for g in by_score]
+
+
 def save_test_model(path, validness_bias=5.0, target="gravity-score"):
     """Random init, made to propose top-down grasps (closing along task y) at every
     near-surface voxel, so a round executes real attempts."""

@@ -29,7 +29,9 @@ Protocol (one *round* = one method, one object weight, one scene):
   Wilson intervals; each method's SR against Binary's at the same weight with a
   two-proportion z test (printed `p_<method>_vs_binary_<kg>=`, results.md).
 
-Methods are model files (`METHODS`); a missing one is skipped with a note. The rotation
+Methods are model files (`METHODS`); a missing one is skipped with a note; a ranking
+variant (`RANKING_VARIANTS`, named in --methods only) runs its base method's model under
+another rank_by, e.g. `ours_expected` ranks by validness x score. The rotation
 ablation's extra models run at `ABLATION_*WEIGHTS_KG` only. A model
 trained with `--target binary` ranks by validness (a success probability) and no
 min-score-in-N threshold applies to it.
@@ -51,7 +53,7 @@ from concurrent.futures.process import BrokenProcessPool
 from ..datagen.object_sources import read_name_list
 from ..physics.objects import ObjectError
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, METHODS, QUICK_ABLATION_WEIGHTS_KG,
-                       QUICK_WEIGHTS_KG, Protocol, weight_key)
+                       QUICK_WEIGHTS_KG, RANKING_VARIANTS, Protocol, weight_key)
 from .report import compare_to
 from .rounds import resolve_methods, run_benchmark
 
@@ -77,7 +79,9 @@ def main(argv=None) -> int:
     p.add_argument("--weights", default=None, help="comma-separated kg; default 0.1,0.3,0.5,0.8,1.0,1.5")
     p.add_argument("--ablation-weights", default=None,
                    help=f"weights of {', '.join(ABLATION_METHODS)}; default 0.5 (quick 0.1), or --weights when given")
-    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, of {', '.join(METHODS)}")
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help=f"comma-separated, of {', '.join(METHODS)} (default: these), or the ranking variants "
+                        f"{', '.join(RANKING_VARIANTS)} (a method's model under another rank_by)")
     p.add_argument("--models-dir", default="models")
     p.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                    help="a model file for a method (also a new method name)")

@@ -22,6 +22,12 @@ METHODS = {
     "ours_ey_ez": "gravgrasp_ey_ez.pt",
     "ours_quat": "gravgrasp_quat.pt",
 }
+# method -> (the method whose model it runs, detection's rank_by): one model, another
+# deployment rule; not run unless named in --methods. "ours_expected" ranks Ours' grasps
+# by validness x score instead of the paper's score among valid voxels.
+RANKING_VARIANTS = {
+    "ours_expected": ("ours", "expected_score"),
+}
 FULL_WEIGHTS_KG = (0.1, 0.3, 0.5, 0.8, 1.0, 1.5)
 QUICK_WEIGHTS_KG = (0.1, 1.5)
 # The rotation ablation is one table in the paper (Sec. V-C), not a weight sweep: its two

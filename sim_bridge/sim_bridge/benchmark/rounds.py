@@ -21,7 +21,8 @@ from gravgrasp_detector.tsdf import TSDFVolume
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
 from .clearing import clear_table
-from .protocol import (ABLATION_METHODS, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, Protocol,
+from .protocol import (ABLATION_METHODS, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED, RANKING_VARIANTS,
+                       SCHEMA_VERSION, Protocol,
                        SceneDrawTask, make_scene, object_pool, scene_ids, weight_key)
 from .report import write_outputs
 from .sim_cell import SimCell
@@ -29,12 +30,12 @@ from .sim_cell import SimCell
 # detection per method
 
 
-def make_detector(model, metadata, protocol: Protocol):
+def make_detector(model, metadata, protocol: Protocol, rank_by=None):
     """tsdf tuple -> ranked grasps. Score methods rank by the gravity-rejection score [N]
     with min_score_n; binary methods rank by validness (their success probability), as the
-    detect node serves them."""
+    detect node serves them; `rank_by` overrides that (RANKING_VARIANTS)."""
     options = DetectionOptions(validness_threshold=protocol.validness_threshold, min_score_n=protocol.min_score_n,
-                               max_grasps=protocol.max_grasps, rank_by=ranking(metadata))
+                               max_grasps=protocol.max_grasps, rank_by=rank_by or ranking(metadata))
 
     def detect(tsdf):
         grid, voxel_size_m, origin = tsdf
@@ -65,7 +66,8 @@ def run_round(task: RoundTask) -> dict:
     model, metadata = load_model(task.model_path)
     volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
     check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
-    cell = SimCell(task.scene, task.mass_kg, task.protocol, volume, make_detector(model, metadata, task.protocol))
+    rank_by = RANKING_VARIANTS[task.method][1] if task.method in RANKING_VARIANTS else None
+    cell = SimCell(task.scene, task.mass_kg, task.protocol, volume, make_detector(model, metadata, task.protocol, rank_by))
     settle_s = cell.settle()
     left_before_start = cell.remove_fallen()  # not counted: no method could have grasped them
     names = cell.objects_on_table()
@@ -89,9 +91,11 @@ def resolve_methods(names, models_dir, overrides=None, note=print):
     overrides = overrides or {}
     found = {}
     for name in names:
-        if name not in METHODS and name not in overrides:
-            raise ValueError(f"unknown method {name!r}: use {', '.join(METHODS)} (or --model NAME=PATH)")
-        path = pathlib.Path(overrides.get(name) or pathlib.Path(models_dir) / METHODS[name])
+        base = RANKING_VARIANTS[name][0] if name in RANKING_VARIANTS else name  # a variant runs its base's model
+        if base not in METHODS and name not in overrides:
+            raise ValueError(f"unknown method {name!r}: use {', '.join([*METHODS, *RANKING_VARIANTS])} "
+                             "(or --model NAME=PATH)")
+        path = pathlib.Path(overrides.get(name) or overrides.get(base) or pathlib.Path(models_dir) / METHODS[base])
         if path.is_file():
             found[name] = str(path.resolve())
         else:
