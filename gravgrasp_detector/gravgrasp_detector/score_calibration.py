@@ -6,7 +6,11 @@ labelled voxels of held-out scenes, per grasp mode (power / precision).
 simulated score, the y = x line; then the validness reliability diagram) and
 DIR/calibration.json, and prints per mode the number of labels, the MAE [N] and
 Spearman's rank correlation, then validness precision / recall at the deployed threshold
-and AUROC over the voxels `detect` considers; last line `score_mae_n=<all modes>`.
+and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
+of a scene land under each ranking the model allows (`model_file.ranking`: score and
+expected_score for a score model): on a labelled voxel (a grasp there held), on an explicit
+negative (a simulated failure or a colliding pose there), or on neither; last line
+`score_mae_n=<all modes>`.
 
 Which scenes: by default those the model's own training split held out (the seed and
 validation fraction stored in the model file; the split is by file name, so the same
@@ -30,7 +34,7 @@ from scipy.stats import spearmanr
 from . import model_file
 from .atomic_files import save_figure, save_json
 from .training_config import TrainConfig
-from .detection import DetectionOptions, near_surface_mask
+from .detection import DetectionOptions, detect_grasps, near_surface_mask
 from .training_losses import auroc
 from .training_scenes import DataError, load_scene, split_scenes
 
@@ -72,6 +76,33 @@ def network_at_labels(model, scene_files, surface_distance_voxels=DetectionOptio
     pairs = {name: (np.concatenate(p), np.concatenate(s)) for name, (p, s) in found.items()}
     validness = (np.concatenate(probability), np.concatenate(labelled)) if probability else (np.zeros(0), np.zeros(0, bool))
     return pairs, validness
+
+
+TOP_K = (1, 5)
+
+
+@torch.inference_mode()
+def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None):
+    """{ranking: {k: {label, negative, neither}}}: where detect's top-k grasps of each
+    scene land, with the deployed options. A voxel that is neither may hold a grasp
+    nobody simulated: "label" is a lower bound on picks that hold, "negative" an upper
+    bound on none of them."""
+    if rankings is None:
+        rankings = (["validness"] if model_file.training_target(metadata) == "binary"
+                    else ["score", "expected_score"])
+    out = {r: {k: {"label": 0, "negative": 0, "neither": 0} for k in TOP_K} for r in rankings}
+    for path in scene_files:
+        scene = load_scene(path)
+        labels = {tuple(v) for v in scene["index"].tolist()}
+        negatives = {tuple(v) for v in scene["negative_index"].tolist()}
+        for r in rankings:
+            grasps = detect_grasps(model, scene["tsdf"], voxel_size_m,
+                                   options=DetectionOptions(max_grasps=max(TOP_K), rank_by=r))
+            for k in TOP_K:
+                for g in grasps[:k]:
+                    v = tuple(g.voxel_index)
+                    out[r][k]["label" if v in labels else "negative" if v in negatives else "neither"] += 1
+    return out
 
 
 def validness_summary(probability, labelled, threshold=DetectionOptions().validness_threshold, bins=10):
@@ -170,18 +201,24 @@ def main(argv=None):
         return 1
     summary = summarise(pairs)
     validness = validness_summary(probability, labelled)
+    picks = top_picks(model, metadata, files, metadata["tsdf"]["voxel_size_m"])
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     title = f"{pathlib.Path(args.model).name} on {len(files)} {args.split} scenes of {args.data}"
     plot(pairs, summary, validness, out / "calibration.png", title)
     save_json(out / "calibration.json", {"model": str(args.model), "data": str(args.data), "split": args.split,
-                                         "scenes": len(files), "modes": summary, "validness": validness})
+                                         "scenes": len(files), "modes": summary, "validness": validness,
+                                         "top_picks": picks})
     for name, row in summary.items():
         print(f"{name}: n={row['n']} mae_n={row['mae_n']:.2f} spearman={row['spearman']:.3f} "
               f"mean_predicted_n={row['mean_predicted_n']:.1f} mean_simulated_n={row['mean_simulated_n']:.1f}")
     print(f"validness near surfaces: {validness['voxels']} voxels, {validness['labelled_valid']} labelled valid; "
           f"at {validness['threshold']:g}: precision={validness['precision']:.4f} recall={validness['recall']:.3f} "
           f"auroc={validness['auroc']:.4f}")
+    for r, by_k in picks.items():
+        print(f"{r} ranking: " + "; ".join(
+            f"top {k} on a label {c['label'] / max(sum(c.values()), 1):.2f}, on a negative "
+            f"{c['negative'] / max(sum(c.values()), 1):.2f} ({sum(c.values())} picks)" for k, c in by_k.items()))
     print(f"score_mae_n={summary['all']['mae_n']:.2f}")
     return 0
 

@@ -97,7 +97,9 @@ def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, 
     expected["all"] = sum(expected.values())
     assert {name: row["n"] for name, row in report["modes"].items()} == expected
     assert lines[-1] == f"score_mae_n={report['modes']['all']['mae_n']:.2f}"
-    assert lines[-2].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
+    assert lines[-4].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
+    assert lines[-3].startswith("score ranking: top 1 on a label ") and lines[-2].startswith("expected_score ranking:")
+    assert set(report["top_picks"]) == {"score", "expected_score"}
     assert (out / "calibration.png").stat().st_size > 5000
 
     assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--split", "all",
@@ -114,3 +116,29 @@ def test_bad_inputs_are_one_line_each(scenes, tmp_path, capsys):
     assert score_calibration.main(["--model", str(model_path), "--data", str(tmp_path / "empty")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no scene files" in err[0]
+
+
+def test_top_picks_are_told_apart_by_what_the_scene_knows_of_their_voxel(scenes, tmp_path, monkeypatch):
+    import numpy as np
+
+    from gravgrasp_detector.detection import Grasp
+    path = sorted(scenes.glob("*.npz"))[0]
+    scene = training_scenes.load_scene(path)
+    label = tuple(scene["index"][0].tolist())
+    negative = next((i, 0, 0) for i in range(40) if (i, 0, 0) not in {tuple(v) for v in scene["index"].tolist()})
+    z = dict(np.load(path))
+    z["negative_index"] = np.asarray([negative], np.uint8)
+    edited = tmp_path / path.name  # not in the shared fixture's folder: other tests glob it
+    np.savez(edited, **z)
+    order = {"score": [negative, label, (39, 39, 39)], "expected_score": [label, negative, (39, 39, 39)]}
+    monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
+        Grasp(np.eye(4), 1.0, 1.0, v) for v in order[options.rank_by]])
+    picks = score_calibration.top_picks(None, {}, [edited], 0.0075)
+    assert picks["score"][1] == {"label": 0, "negative": 1, "neither": 0}
+    assert picks["expected_score"][1] == {"label": 1, "negative": 0, "neither": 0}
+    assert picks["score"][5] == picks["expected_score"][5] == {"label": 1, "negative": 1, "neither": 1}
+    # a binary model has one ranking, its validness
+    monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
+        Grasp(np.eye(4), 1.0, 1.0, label)] if options.rank_by == "validness" else [])
+    assert list(score_calibration.top_picks(None, {"training_data": {"target": "binary"}}, [edited], 0.0075)) == \
+        ["validness"]
