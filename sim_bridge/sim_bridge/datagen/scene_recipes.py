@@ -186,16 +186,20 @@ class RestoreTask:
     recipe: dict
 
 
+def settled_scene(scene_task: SceneTask, recipe: dict):
+    """What label_scene takes, from a recipe: (tables, specs, poses, views)."""
+    objects_dir = pathlib.Path(scene_task.objects_dir)
+    tables = [load_table(objects_dir / f"{n}.npz") for n in recipe["object_names"]]
+    specs = [object_from_table(t, scene_task.mesh_dirs) for t in tables]
+    return (tables, specs, list(np.asarray(recipe["X_task_object"], np.float64)),
+            list(np.asarray(recipe["T_task_camera"], np.float64)))
+
+
 def restore_scene(task: RestoreTask):
     """Worker: ("ok", arrays) or ("error", message)."""
     try:
         r = task.recipe
-        objects_dir = pathlib.Path(task.scene.objects_dir)
-        tables = [load_table(objects_dir / f"{n}.npz") for n in r["object_names"]]
-        specs = [object_from_table(t, task.scene.mesh_dirs) for t in tables]
-        poses = list(np.asarray(r["X_task_object"], np.float64))
-        views = list(np.asarray(r["T_task_camera"], np.float64))
-        scene = label_scene(task.scene, tables, specs, poses, views)
+        scene = label_scene(task.scene, *settled_scene(task.scene, r))
         scene.update(arrangement=np.asarray(r["arrangement"]), n_objects_requested=np.asarray(r["n_objects_requested"]))
         if int(scene["seed"]) != int(r["seed"]):
             return "error", (f"scene {task.scene.index}: recipe seed {int(r['seed'])} is not the seed "

@@ -24,10 +24,8 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 
 from ..parallel import make_executor, run_tasks
-from .object_grasps import load_table
-from .object_sources import object_from_table
 from .scene_dataset import SceneTask, label_scene, usable_tables
-from .scene_recipes import read_block
+from .scene_recipes import read_block, settled_scene
 
 CUT_REASON = "simulation error (table cut by table_size_study)"  # startswith: not a negative
 
@@ -54,12 +52,7 @@ def cut_table(table: dict, n: int) -> dict:
 def run_study_task(task: StudyTask):
     """Worker: ("ok", {n: labels}) or ("error", message)."""
     try:
-        r = task.recipe
-        objects_dir = pathlib.Path(task.scene.objects_dir)
-        tables = [load_table(objects_dir / f"{n}.npz") for n in r["object_names"]]
-        specs = [object_from_table(t, task.scene.mesh_dirs) for t in tables]
-        poses = list(np.asarray(r["X_task_object"], np.float64))
-        views = list(np.asarray(r["T_task_camera"], np.float64))
+        tables, specs, poses, views = settled_scene(task.scene, task.recipe)
         return "ok", {n: len(label_scene(task.scene, [cut_table(t, n) for t in tables], specs, poses, views)
                              ["label_score"]) for n in task.sizes}
     except Exception as e:  # reported; the other scenes go on
