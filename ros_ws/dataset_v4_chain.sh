@@ -17,8 +17,9 @@
 # 4. all five models on it, the same schedule as v3, into out/training_v4/<variant>
 #    (copy them to models/ with their cards by hand, and commit them: a retrained model has
 #    another sha256, and the benchmark below redoes every round of a model it has not seen);
-# 5. the held-out benchmark of the five into sim_bridge/results/heldout_v4 (commit its rounds
-#    as they come), then unseen procedural objects into sim_bridge/results/procedural_v4.
+# 5. the held-out benchmark of the five, and of Ours ranked by validness x score
+#    (ours_expected), into sim_bridge/results/heldout_v4 (commit its rounds as they come),
+#    then unseen procedural objects into sim_bridge/results/procedural_v4.
 set -euo pipefail
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
@@ -60,10 +61,11 @@ for pair in ours:ours binary:binary ours_precision:precision_only ours_ey_ez:ey_
 done
 bench_size=(--scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5)  # the Makefile's BENCH_SIZE
 echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes: ${models[*]}"
+methods=(--methods ours,binary,ours_precision,ours_ey_ez,ours_quat,ours_expected)  # ours_expected: Ours' model by validness x score
 python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
-  --out sim_bridge/results/heldout_v4 --workers "$workers" --no-progress "${bench_size[@]}" "${models[@]}" \
+  --out sim_bridge/results/heldout_v4 --workers "$workers" --no-progress "${bench_size[@]}" "${methods[@]}" "${models[@]}" \
   || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
 echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
 python -m sim_bridge.benchmark.clutter_benchmark --out sim_bridge/results/procedural_v4 --workers "$workers" \
-  --no-progress "${bench_size[@]}" "${models[@]}"
+  --no-progress "${bench_size[@]}" "${methods[@]}" "${models[@]}"
 echo "[chain] $(date -u +%FT%TZ) done"
