@@ -7,8 +7,8 @@ simulated score, the y = x line; then the validness reliability diagram) and
 DIR/calibration.json, and prints per mode the number of labels, the MAE [N] and
 Spearman's rank correlation, then validness precision / recall at the deployed threshold
 and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
-of a scene land under each ranking the model allows (`model_file.ranking`: score and
-expected_score for a score model): on a labelled voxel (a grasp there held), on an explicit
+of a scene land under each ranking the model allows (`model_file.ranking`: score,
+expected_score and validness for a score model): on a labelled voxel (a grasp there held), on an explicit
 negative (a simulated failure or a colliding pose there), or on neither; last line
 `score_mae_n=<all modes>`.
 
@@ -89,7 +89,7 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None):
     bound on none of them."""
     if rankings is None:
         rankings = (["validness"] if model_file.training_target(metadata) == "binary"
-                    else ["score", "expected_score"])
+                    else ["score", "expected_score", "validness"])
     out = {r: {k: {"label": 0, "negative": 0, "neither": 0} for k in TOP_K} for r in rankings}
     for path in scene_files:
         scene = load_scene(path)

@@ -97,9 +97,9 @@ def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, 
     expected["all"] = sum(expected.values())
     assert {name: row["n"] for name, row in report["modes"].items()} == expected
     assert lines[-1] == f"score_mae_n={report['modes']['all']['mae_n']:.2f}"
-    assert lines[-4].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
-    assert lines[-3].startswith("score ranking: top 1 on a label ") and lines[-2].startswith("expected_score ranking:")
-    assert set(report["top_picks"]) == {"score", "expected_score"}
+    assert lines[-5].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
+    assert lines[-4].startswith("score ranking: top 1 on a label ") and lines[-3].startswith("expected_score ranking:")
+    assert set(report["top_picks"]) == {"score", "expected_score", "validness"}
     assert (out / "calibration.png").stat().st_size > 5000
 
     assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--split", "all",
@@ -130,7 +130,8 @@ def test_top_picks_are_told_apart_by_what_the_scene_knows_of_their_voxel(scenes,
     z["negative_index"] = np.asarray([negative], np.uint8)
     edited = tmp_path / path.name  # not in the shared fixture's folder: other tests glob it
     np.savez(edited, **z)
-    order = {"score": [negative, label, (39, 39, 39)], "expected_score": [label, negative, (39, 39, 39)]}
+    order = {"score": [negative, label, (39, 39, 39)], "expected_score": [label, negative, (39, 39, 39)],
+             "validness": []}
     monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
         Grasp(np.eye(4), 1.0, 1.0, v) for v in order[options.rank_by]])
     picks = score_calibration.top_picks(None, {}, [edited], 0.0075)
