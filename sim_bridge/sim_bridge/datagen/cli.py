@@ -296,7 +296,7 @@ def _run_recipes(args):
         print(e)
     if s["differing"]:
         print(f"{len(s['differing'])} rebuilt scenes have labels unlike the recorded ones (rounding on another "
-              f"CPU or library version, or grasp tables changed since they were packed; kept): {', '.join(map(str, s['differing'][:20]))}")
+              f"CPU or library version; kept): {', '.join(map(str, s['differing'][:20]))}")
     if args.relabel and s["label_counts"]:
         before, after = np.array(list(s["label_counts"].values())).T
         print(f"relabelled {len(before)} scenes: labels per scene median {np.median(before):g} -> "

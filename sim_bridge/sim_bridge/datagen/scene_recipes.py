@@ -112,6 +112,21 @@ def read_block(path) -> dict:
     return recipes
 
 
+def read_recipes(recipe_dir) -> dict:
+    """Every recipe of a recipe directory: {scene index: recipe dict}."""
+    recipes = {}
+    for block in sorted(pathlib.Path(recipe_dir).glob("recipes_*.npz")):
+        recipes.update(read_block(block))
+    return recipes
+
+
+def scene_task(manifest: dict, index: int, recipe: dict, objects_dir, names, mesh_dirs) -> SceneTask:
+    """The scene stage's task for a recipe's scene, labelled with the tables in objects_dir."""
+    return SceneTask(index, manifest["seed"], str(objects_dir), names, tuple(str(d) for d in mesh_dirs),
+                     label_pose=manifest["label_pose"], symmetry=manifest["symmetry"], mirrors=manifest["mirrors"],
+                     execution_check=manifest["execution_check"], approach_m=float(recipe["approach_m"]))
+
+
 def _recipe_of(path) -> dict:
     try:
         with np.load(path) as z:
@@ -186,11 +201,11 @@ class RestoreTask:
     recipe: dict
 
 
-def settled_scene(scene_task: SceneTask, recipe: dict):
+def settled_scene(task: SceneTask, recipe: dict):
     """What label_scene takes, from a recipe: (tables, specs, poses, views)."""
-    objects_dir = pathlib.Path(scene_task.objects_dir)
+    objects_dir = pathlib.Path(task.objects_dir)
     tables = [load_table(objects_dir / f"{n}.npz") for n in recipe["object_names"]]
-    specs = [object_from_table(t, scene_task.mesh_dirs) for t in tables]
+    specs = [object_from_table(t, task.mesh_dirs) for t in tables]
     return (tables, specs, list(np.asarray(recipe["X_task_object"], np.float64)),
             list(np.asarray(recipe["T_task_camera"], np.float64)))
 
@@ -223,9 +238,7 @@ def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=Non
     objects_dir = (pathlib.Path(objects_out_dir) / "objects" if objects_out_dir
                    else pathlib.Path(manifest["objects_dir"]))
     names = tuple(usable_tables(objects_dir)) if objects_dir.is_dir() else ()
-    recipes = {}
-    for block in sorted(src.glob("recipes_*.npz")):
-        recipes.update(read_block(block))
+    recipes = read_recipes(src)
     pool_sha256 = hashlib.sha256("\n".join(names).encode()).hexdigest()
     if relabel:
         if recorded_tables is None:
@@ -263,10 +276,7 @@ def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=Non
                               "restore into a new directory")
     else:
         atomic_files.save_json(mpath, here)
-    tasks = [RestoreTask(SceneTask(i, manifest["seed"], str(objects_dir), names, tuple(str(d) for d in mesh_dirs),
-                                   label_pose=manifest["label_pose"], symmetry=manifest["symmetry"],
-                                   mirrors=manifest["mirrors"], execution_check=manifest["execution_check"],
-                                   approach_m=float(r["approach_m"])), r)
+    tasks = [RestoreTask(scene_task(manifest, i, r, objects_dir, names, mesh_dirs), r)
              for i, r in sorted(recipes.items()) if not store.path(i).exists()]
     errors, differing, label_counts = [], [], {}
 

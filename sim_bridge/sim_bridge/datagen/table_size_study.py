@@ -25,7 +25,7 @@ from gravgrasp_detector import atomic_files
 
 from ..parallel import make_executor, run_tasks
 from .scene_dataset import SceneTask, label_scene, usable_tables
-from .scene_recipes import read_block, settled_scene
+from .scene_recipes import read_recipes, scene_task, settled_scene
 
 CUT_REASON = "simulation error (table cut by table_size_study)"  # startswith: not a negative
 
@@ -89,9 +89,7 @@ def main(argv=None):
     manifest = json.loads((recipes_dir / "manifest.json").read_text())
     objects_dir = pathlib.Path(args.tables) / "objects"
     names = tuple(usable_tables(objects_dir))
-    recipes = {}
-    for block in sorted(recipes_dir.glob("recipes_*.npz")):
-        recipes.update(read_block(block))
+    recipes = read_recipes(recipes_dir)
     out = pathlib.Path(args.out)
     done = json.loads(out.read_text()) if out.exists() else {}
     if done and done.get("sizes") != list(sizes):
@@ -100,10 +98,7 @@ def main(argv=None):
     missing = sorted({str(n) for r in recipes.values() for n in r["object_names"]} - set(names))
     if missing:
         p.error(f"{len(missing)} objects of the scenes have no usable table in {objects_dir} (e.g. {missing[0]})")
-    tasks = [StudyTask(SceneTask(i, manifest["seed"], str(objects_dir), names, tuple(args.meshes),
-                                 label_pose=manifest["label_pose"], symmetry=manifest["symmetry"],
-                                 mirrors=manifest["mirrors"], execution_check=manifest["execution_check"],
-                                 approach_m=float(recipes[i]["approach_m"])), recipes[i], sizes)
+    tasks = [StudyTask(scene_task(manifest, i, recipes[i], objects_dir, names, args.meshes), recipes[i], sizes)
              for i in sorted(recipes)[::args.every] if i not in counts]
     errors = []
 
