@@ -9,7 +9,9 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 [ $# -ge 4 ] && [ "$3" = "--" ] || { echo "usage: ros_ws/run_pinned.sh COMMIT LOG -- COMMAND..." >&2; exit 2; }
-commit="$(git -C "$root" rev-parse --verify "$1^{commit}")"; log="$2"; shift 3
+commit="$(git -C "$root" rev-parse --verify --quiet "$1^{commit}")" \
+  || { echo "run_pinned.sh: '$1' names no commit of $root (give a hash or HEAD; git log --oneline lists them)" >&2; exit 2; }
+log="$2"; shift 3
 wt="$root/out/pinned/${commit:0:12}"
 [ -d "$wt" ] || git -C "$root" worktree add --detach "$wt" "$commit" >/dev/null
 set +u; source "$root/ros_ws/env.sh"; set -u
