@@ -21,7 +21,8 @@ help:
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (~8 h; nohup; resumable)"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
-	@echo "make data-report   - summary of the committed v2 grasp tables and SCENES_OUT (out/scenes_v3)"
+	@echo "make data-report   - summary of TABLES (models/grasp_tables_v2) and SCENES_OUT (out/scenes_v3)"
+	@echo "make data-tables-v3 / data-scenes-v4 - v2 tables grown to 320 candidates; the v3 scenes relabelled with them"
 	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
@@ -105,6 +106,7 @@ SCENES ?= 5000
 # models learned from it); out/scenes_v3: the grown tables, labels checked where the robot
 # executes them (sim_bridge README, *Dataset v2*). The pool is pinned per directory.
 SCENES_OUT ?= out/scenes_v3
+TABLES ?= models/grasp_tables_v2
 WORKERS ?= 2
 PROCEDURAL ?= 100
 # v2's objects: the first 220 of the round-robin order (all 100 procedural, 120 VGN meshes;
@@ -124,7 +126,21 @@ data-scenes: setup
 	  --scenes $(SCENES) --seed 0 --out $(SCENES_OUT) --workers $(WORKERS)
 
 data-report: setup
-	@$(ROS) ros2 run sim_bridge data_report models/grasp_tables_v2 --scenes $(SCENES_OUT)
+	@$(ROS) ros2 run sim_bridge data_report $(TABLES) --scenes $(SCENES_OUT)
+
+# Dataset v4 (issue 15's labels per scene): the v2 tables grown in place to TABLES_V3_GRASPS
+# candidates (models/grasp_tables_v3, committed; its first 256 rows are v2's) and the v3
+# scenes relabelled from their committed recipes with them (the same settled scenes, no
+# physics, ~1 CPU-s a scene). ros_ws/dataset_v4_chain.sh runs both, then training.
+TABLES_V3_GRASPS ?= 320
+.PHONY: data-tables-v3 data-scenes-v4
+data-tables-v3: setup
+	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
+	  --procedural $(PROCEDURAL) --limit $(OBJECTS) --grasps-per-object $(TABLES_V3_GRASPS) $(LABEL_SETTINGS) \
+	  --seed 0 --out models/grasp_tables_v3 --workers $(WORKERS)
+data-scenes-v4: setup
+	@$(ROS) ros2 run sim_bridge datagen recipes restore models/scene_recipes_v3 out/scenes_v4 \
+	  --objects models/grasp_tables_v3 --meshes $(CURDIR)/../shared/meshes/vgn_train --workers $(WORKERS) --relabel
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
