@@ -106,3 +106,19 @@ def test_the_opening_the_pads_stop_at_is_the_objects_extent_between_them():
     # closed that far, the pad tips reach hand_geometry's depth for a 50 mm opening
     low = hand_collision.closed_tips_lowest_z(X, [0.05])[0]
     assert low == pytest.approx(0.08 - hand_collision.pad_tip_z_m(0.05), abs=1e-9)
+
+
+def test_point_counts_never_miss_a_point_in_a_cube():
+    """The grid prefilter of collides may say "maybe" for an empty cube, never "empty" for
+    a cube holding a point: on its faces, across the grid's edges and outside it."""
+    rng = np.random.default_rng(5)
+    P = rng.uniform(0.0, 0.2, (3000, 3))
+    counts = hand_collision._PointCounts(P)
+    centres = np.concatenate([rng.uniform(-0.05, 0.25, (4000, 3)), P[:500]])  # some on a point
+    radii = np.concatenate([rng.uniform(0.0, 0.03, 4000), np.zeros(500)])
+    inside = (np.abs(P[None] - centres[:, None]) <= radii[:, None, None]).all(-1).any(-1)
+    maybe = counts.any_in_cubes(centres, radii)
+    assert inside.sum() > 500 and (~inside).sum() > 1000
+    assert not (inside & ~maybe).any()
+    assert (maybe & ~inside).sum() < 0.5 * (~inside).sum()  # and it does skip most empty ones
+    assert not counts.any_in_cubes(np.array([[1.0, 1.0, 1.0], [-1.0, 0.1, 0.1]]), np.array([0.1, 0.1])).any()
