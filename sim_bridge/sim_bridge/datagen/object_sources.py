@@ -91,10 +91,19 @@ def procedural_sources(count, seed):
 
 def object_from_table(table, mesh_dirs=()):
     """The ObjectSpec a grasp table was made for; ObjectError if it cannot be found or
-    is no longer the same shape (then the table must be regenerated)."""
-    spec = source_from_table(table, mesh_dirs).load()
-    if "shape_sha256" in table and shape_sha256(spec) != str(table["shape_sha256"]):
-        raise ObjectError(f"{table['name']}: the object is not the one its grasp table was simulated with "
+    is no longer the same shape (then the table must be regenerated). The same object of
+    the same file is built once per process (treat the spec as read-only)."""
+    expected = str(table["shape_sha256"]) if "shape_sha256" in table else None
+    return _checked_object(source_from_table(table, mesh_dirs), expected)
+
+
+@functools.lru_cache(maxsize=512)
+def _checked_object(source, expected_sha256):
+    # a scene worker rebuilds each object ~100 times over 5,000 scenes; loading a mesh
+    # and fingerprinting it cost about as much as labelling the scene
+    spec = source.load()
+    if expected_sha256 is not None and shape_sha256(spec) != expected_sha256:
+        raise ObjectError(f"{source.name}: the object is not the one its grasp table was simulated with "
                           "(objects.py or the mesh changed); regenerate its table")
     return spec
 
