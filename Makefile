@@ -223,10 +223,14 @@ calibration: setup
 # A card per model of `make models` (models/gravgrasp*.md), each after its qualitative PNGs.
 # Keeps the hand-written "What a person saw" paragraphs.
 .PHONY: model-cards
+# The cards link the slices shipped beside the models (models/qualitative/<stem>/); CARD_ARGS
+# names the data, e.g. the v4 models: TRAIN_OUT=out/training_v4
+# CARD_ARGS="--tables models/grasp_tables_v3 --recipes models/scene_recipes_v3".
+CARD_ARGS ?=
 model-cards: setup
 	@$(ROS) set -e; for spec in $(MODEL_VARIANTS); do \
 	  v=$${spec%%:*}; m=models/gravgrasp$$([ $$v = ours ] || echo _$$v).pt; \
 	  if [ ! -f $$m ]; then echo "make model-cards: $$m does not exist (make models)" >&2; exit 2; fi; \
-	  q=out/qualitative/$$(basename $$m .pt); ros2 run sim_bridge qualitative --model $$m --out $$q > /dev/null; \
-	  ros2 run gravgrasp_detector model_card $(TRAIN_OUT)/$$v --model $$m --qualitative $$q; \
+	  q=models/qualitative/$$(basename $$m .pt); ros2 run sim_bridge qualitative --model $$m --out $$q > /dev/null; \
+	  ros2 run gravgrasp_detector model_card $(TRAIN_OUT)/$$v --model $$m --qualitative $$q $(CARD_ARGS); \
 	done
