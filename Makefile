@@ -21,7 +21,7 @@ help:
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (~8 h; nohup; resumable)"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
-	@echo "make data-report   - summary of TABLES (models/grasp_tables_v2) and SCENES_OUT (out/scenes_v3)"
+	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
 	@echo "make data-tables-v3 / data-scenes-v4 - v2 tables grown to 320 candidates; the v3 scenes relabelled with them"
 	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
@@ -106,7 +106,8 @@ SCENES ?= 5000
 # models learned from it); out/scenes_v3: the grown tables, labels checked where the robot
 # executes them (sim_bridge README, *Dataset v2*). The pool is pinned per directory.
 SCENES_OUT ?= out/scenes_v3
-TABLES ?= models/grasp_tables_v2
+TABLES ?= models/grasp_tables_v3
+REPORT_SCENES ?= out/scenes_v4
 WORKERS ?= 2
 PROCEDURAL ?= 100
 # v2's objects: the first 220 of the round-robin order (all 100 procedural, 120 VGN meshes;
@@ -126,7 +127,7 @@ data-scenes: setup
 	  --scenes $(SCENES) --seed 0 --out $(SCENES_OUT) --workers $(WORKERS)
 
 data-report: setup
-	@$(ROS) ros2 run sim_bridge data_report $(TABLES) --scenes $(SCENES_OUT)
+	@$(ROS) ros2 run sim_bridge data_report $(TABLES) --scenes $(REPORT_SCENES)
 
 # Dataset v4 (issue 15's labels per scene): the v2 tables grown in place to TABLES_V3_GRASPS
 # candidates (models/grasp_tables_v3, committed; its first 256 rows are v2's) and the v3
