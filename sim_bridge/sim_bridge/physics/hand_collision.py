@@ -52,12 +52,12 @@ def collides(X_world_tcp, points_world=None, table_z_m=None, approach_m=0.0,
         hit |= lowest_point_z(X, approach_m, margin_m) < table_z_m
     if points_world is not None and len(points_world):
         P = np.asarray(points_world, dtype=float)
-        tree, counts = cKDTree(P), _PointCounts(P)
+        tree, grid = cKDTree(P), _PointCounts(P)
         todo = np.flatnonzero(~hit)
         # fingers first (HAND_PARTS reversed): they hit most, and a pose that hit is done
         for lo, hi in (piece for box in boxes[::-1] for piece in _cube_like_pieces(*box)):
             for chunk in np.array_split(todo, max(1, len(todo) // POSES_PER_QUERY)):
-                hit[chunk] = _points_in_box(X[chunk], P, tree, lo, hi, counts)
+                hit[chunk] = _points_in_box(X[chunk], P, tree, grid, lo, hi)
             todo = todo[~hit[todo]]
     return hit
 
@@ -109,31 +109,25 @@ class _PointCounts:
         return (total > 0) & ~empty
 
 
-def _points_in_box(X, P, tree, lo, hi, counts=None):
+def _points_in_box(X, P, tree, grid, lo, hi):
     """(N,) bool: is any point of P inside the box lo..hi (TCP frame) at each pose X?
     Only the points in a cube around the box's world bounding box are tested (Chebyshev
-    ball query): a hand sweeps a few centimetres of a scene ~30 cm across. `counts`
-    (_PointCounts of P) skips the poses whose cube holds no point before the query."""
-    if not len(X):
-        return np.zeros(0, dtype=bool)
+    ball query): a hand sweeps a few centimetres of a scene ~30 cm across. The poses
+    whose cube `grid` (_PointCounts of P) finds empty skip the query."""
+    hit = np.zeros(len(X), dtype=bool)
     R, t = X[:, :3, :3], X[:, :3, 3]
     centres = R @ ((lo + hi) / 2) + t
-    half = np.abs(R) @ ((hi - lo) / 2)  # (N, 3): half extents of the box's world AABB
-    if counts is not None:
-        hit = np.zeros(len(X), dtype=bool)
-        maybe = np.flatnonzero(counts.any_in_cubes(centres, half.max(axis=1)))
-        if len(maybe):
-            hit[maybe] = _points_in_box(X[maybe], P, tree, lo, hi)
-        return hit
-    near = tree.query_ball_point(centres, half.max(axis=1), p=np.inf, return_sorted=False)
+    radii = (np.abs(R) @ ((hi - lo) / 2)).max(axis=1)  # of the box's world AABB
+    maybe = np.flatnonzero(grid.any_in_cubes(centres, radii))
+    near = tree.query_ball_point(centres[maybe], radii[maybe], p=np.inf, return_sorted=False)
     counts = np.fromiter((len(n) for n in near), dtype=np.int64, count=len(near))
     if not counts.any():
-        return np.zeros(len(X), dtype=bool)
-    owner = np.repeat(np.arange(len(X)), counts)
+        return hit
+    owner = np.repeat(maybe, counts)
     index = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
     q = np.einsum("nij,ni->nj", R[owner], P[index] - t[owner])  # into the TCP frame
-    inside = ((q >= lo) & (q <= hi)).all(axis=1)
-    return np.bincount(owner[inside], minlength=len(X)) > 0
+    hit[owner[((q >= lo) & (q <= hi)).all(axis=1)]] = True
+    return hit
 
 
 def lowest_point_z(X_world_tcp, approach_m=0.0, margin_m=0.0):
