@@ -18,12 +18,14 @@
 #    no physics (`recipes restore --relabel`, ~1 CPU-s a scene); nothing else to commit: the
 #    recipes and the tables rebuild it on any machine.
 # 3. the data report (objects=, grasps=, power_fraction=, labels_per_scene_median=);
-# 4. all five models on it, the same schedule as v3, into out/training_v4/<variant>
+# 4. Ours and Binary on it, the same schedule as v3, into out/training_v4/<variant>
 #    (copy them to models/ with their cards by hand, and commit them: a retrained model has
-#    another sha256, and the benchmark below redoes every round of a model it has not seen);
-# 5. the held-out benchmark of the five, and of Ours ranked by validness x score
-#    (ours_expected), into sim_bridge/results/heldout_v4 (commit its rounds as they come),
-#    then unseen procedural objects into sim_bridge/results/procedural_v4.
+#    another sha256, and the benchmark redoes every round of a model it has not seen);
+# 5. the held-out benchmark of those two and of Ours ranked by validness x score
+#    (ours_expected) into sim_bridge/results/heldout_v4 (commit its rounds as they come):
+#    issue 16's targets are about these three, so they come before the ablations;
+# 6. the three ablation models (precision-only, ey-ez, quaternion), then their held-out
+#    rounds, then all six methods on unseen procedural objects (sim_bridge/results/procedural_v4).
 set -euo pipefail
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
@@ -55,22 +57,38 @@ train() {  # train VARIANT FILE [OPTION]: one model into out/training_v4/VARIANT
 variants=(ours:gravgrasp.pt binary:gravgrasp_binary.pt:--target=binary
           precision_only:gravgrasp_precision_only.pt:--data-subset=precision-only
           ey_ez:gravgrasp_ey_ez.pt:--rotation=ey-ez quat:gravgrasp_quat.pt:--rotation=quat)
-for v in "${variants[@]}"; do IFS=: read -r variant file option <<< "$v"; train "$variant" "$file" $option; done
-
-models=()  # methods of the benchmark: models/ once shipped (a lost out/ cannot change their sha256)
-for pair in ours:ours binary:binary ours_precision:precision_only ours_ey_ez:ey_ez ours_quat:quat; do
-  method="${pair%%:*}"; variant="${pair#*:}"
-  for v in "${variants[@]}"; do [ "${v%%:*}" = "$variant" ] && { file="${v#*:}"; file="${file%%:*}"; }; done
-  if shipped "$variant" "$file"; then models+=(--model "$method=models/$file")
-  else models+=(--model "$method=out/training_v4/$variant/model.pt"); fi
-done
+train_variants() {  # train_variants VARIANT...: those of `variants`, in that order
+  for v in "${variants[@]}"; do IFS=: read -r variant file option <<< "$v"
+    [[ " $* " == *" $variant "* ]] && train "$variant" "$file" $option; done; return 0
+}
+model_args() {  # model_args METHODS: --model METHOD=PATH for those of METHODS (comma-separated) that
+  # have a model: models/ once shipped (a lost out/ cannot change their sha256); the benchmark
+  # runs every method it is given a --model for, so only those of METHODS
+  models=()
+  for pair in ours:ours binary:binary ours_precision:precision_only ours_ey_ez:ey_ez ours_quat:quat; do
+    method="${pair%%:*}"; variant="${pair#*:}"
+    [[ ",$1," == *",$method,"* ]] || continue
+    for v in "${variants[@]}"; do [ "${v%%:*}" = "$variant" ] && { file="${v#*:}"; file="${file%%:*}"; }; done
+    if shipped "$variant" "$file"; then models+=(--model "$method=models/$file")
+    elif [ -f "out/training_v4/$variant/model.pt" ]; then models+=(--model "$method=out/training_v4/$variant/model.pt"); fi
+  done
+}
 bench_size=(--scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5)  # the Makefile's BENCH_SIZE
-echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes: ${models[*]}"
-methods=(--methods ours,binary,ours_precision,ours_ey_ez,ours_quat,ours_expected)  # ours_expected: Ours' model by validness x score
-python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
-  --out sim_bridge/results/heldout_v4 --workers "$workers" --no-progress "${bench_size[@]}" "${methods[@]}" "${models[@]}" \
-  || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
+heldout() {  # heldout METHODS: their rounds on the held-out meshes (done rounds are kept)
+  model_args "$1"
+  echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes: $1 (${models[*]})"
+  python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
+    --out sim_bridge/results/heldout_v4 --workers "$workers" --no-progress "${bench_size[@]}" --methods "$1" "${models[@]}" \
+    || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
+}
+all_methods=ours,binary,ours_precision,ours_ey_ez,ours_quat,ours_expected  # ours_expected: Ours' model by validness x score
+
+train_variants ours binary
+heldout ours,binary,ours_expected
+train_variants precision_only ey_ez quat
+heldout "$all_methods"
+model_args "$all_methods"
 echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
 python -m sim_bridge.benchmark.clutter_benchmark --out sim_bridge/results/procedural_v4 --workers "$workers" \
-  --no-progress "${bench_size[@]}" "${methods[@]}" "${models[@]}"
+  --no-progress "${bench_size[@]}" --methods "$all_methods" "${models[@]}"
 echo "[chain] $(date -u +%FT%TZ) done"
