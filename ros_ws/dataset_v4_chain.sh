@@ -18,14 +18,14 @@
 #    no physics (`recipes restore --relabel`, ~1 CPU-s a scene); nothing else to commit: the
 #    recipes and the tables rebuild it on any machine.
 # 3. the data report (objects=, grasps=, power_fraction=, labels_per_scene_median=);
-# 4. Ours and Binary on it, the same schedule as v3, into out/training_v4/<variant>
-#    (copy them to models/ with their cards by hand, and commit them: a retrained model has
-#    another sha256, and the benchmark redoes every round of a model it has not seen);
-# 5. the held-out benchmark of those two and of Ours ranked by validness x score
-#    (ours_expected) into sim_bridge/results/heldout_v4 (commit its rounds as they come):
-#    issue 16's targets are about these three, so they come before the ablations;
-# 6. the three ablation models (precision-only, ey-ez, quaternion), then their held-out
-#    rounds, then all six methods on unseen procedural objects (sim_bridge/results/procedural_v4).
+# 4. all five models on it, the same schedule as v3, into out/training_v4/<variant> (~25 min
+#    each alone on the 2-core EPYC; copy them to models/ with their cards by hand, and commit
+#    them: a retrained model has another sha256, and the benchmark redoes every round of a
+#    model it has not seen);
+# 5. the held-out benchmark (sim_bridge/results/heldout_v4; commit its rounds as they come):
+#    Ours, Binary and Ours ranked by validness x score (ours_expected) first, as issue 16's
+#    targets are about these three, then the ablations; then all six methods on unseen
+#    procedural objects (sim_bridge/results/procedural_v4).
 set -euo pipefail
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
@@ -83,9 +83,8 @@ heldout() {  # heldout METHODS: their rounds on the held-out meshes (done rounds
 }
 all_methods=ours,binary,ours_precision,ours_ey_ez,ours_quat,ours_expected  # ours_expected: Ours' model by validness x score
 
-train_variants ours binary
+train_variants ours binary precision_only ey_ez quat
 heldout ours,binary,ours_expected
-train_variants precision_only ey_ez quat
 heldout "$all_methods"
 model_args "$all_methods"
 echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
