@@ -31,6 +31,7 @@ setup(
             "symmetry_study = sim_bridge.datagen.symmetry_study:main",
             "table_size_study = sim_bridge.datagen.table_size_study:main",
             "label_execution_study = sim_bridge.benchmark.label_execution_study:main",
+            "replay_round = sim_bridge.benchmark.replay:main",
         ],
     },
 )

@@ -392,3 +392,40 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     assert cell.objects_on_table() == [] and cell.world.object_names() == []  # removed
     assert np.allclose(cell.world.tcp_pose()[:3, 3], cell.home[:3, 3], atol=1e-3)  # back home
     assert cell.world.finger_width_m() > 0.08  # open
+
+
+def test_a_recorded_round_replays_to_the_same_attempts_and_shows_the_closing_region(tmp_path, capsys):
+    """replay_round: the first attempt of a fresh one-round run comes out the same (pose and
+    outcome), with what the detector saw between the pads; another model file or a round
+    that was not run is one error line."""
+    from sim_bridge.benchmark import replay
+
+    model = save_test_model(tmp_path / "ours.pt")
+    out = tmp_path / "out"
+    assert cb.main(["--out", str(out), "--methods", "ours", "--models-dir", str(tmp_path / "none"),
+                    "--model", f"ours={model}", "--scenes", "1", "--weights", "0.3", "--time-step-s", "0.002",
+                    "--workers", "0", "--no-progress", "--seed", "1"]) == 0
+    recorded = json.loads((out / "rounds" / "ours" / "0.3" / "packed_000.json").read_text())["attempts"]
+    assert recorded
+    capsys.readouterr()
+    argv = ["--results", str(out), "--method", "ours", "--weight", "0.3", "--scene", "packed_000",
+            "--model", str(model), "--attempts", "1", "--dump", str(tmp_path / "dump")]
+    assert replay.main(argv) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == "replayed=1 matched=1"
+    entry = json.loads(lines[0])
+    assert entry["recorded"] == entry["replayed"] == recorded[0]["outcome"] and entry["same_pose"]
+    assert entry["observed"]["voxels"] >= 1  # the detector's closing-region check passed it
+    lo, hi = np.round(np.asarray(replay.CLOSING_REGION_TCP) * 1000)
+    assert np.all(np.asarray(entry["observed"]["min"]) >= lo - 1) and np.all(np.asarray(entry["observed"]["max"]) <= hi + 1)
+    if entry["replayed"] == "success":  # what it lifted was between the pads
+        assert entry["objects"]
+    dumped = np.load(tmp_path / "dump" / "1.npz")
+    assert dumped["grid"].shape == (40, 40, 40) and np.allclose(dumped["pose"], recorded[0]["pose"], atol=2e-6)
+
+    other = save_test_model(tmp_path / "other.pt", validness_bias=4.0)
+    assert replay.main(argv[:8] + ["--model", str(other)]) == 2
+    assert "is not the model this round ran" in capsys.readouterr().err
+    assert replay.main(["--results", str(out), "--method", "ours", "--weight", "1.5", "--scene", "packed_000",
+                        "--model", str(model)]) == 2
+    assert "no round" in capsys.readouterr().err

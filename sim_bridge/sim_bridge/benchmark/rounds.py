@@ -58,16 +58,20 @@ class RoundTask:
     protocol: Protocol
 
 
-def run_round(task: RoundTask) -> dict:
-
-
-    torch.set_num_threads(1)  # one core per round: the pool gives the parallelism
-    t0 = time.process_time()
+def make_cell(task: RoundTask) -> tuple:
+    """(SimCell of the round's scene and weight with its method's detector, model metadata)."""
     model, metadata = load_model(task.model_path)
     volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
     check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
     rank_by = RANKING_VARIANTS[task.method][1] if task.method in RANKING_VARIANTS else None
-    cell = SimCell(task.scene, task.mass_kg, task.protocol, volume, make_detector(model, metadata, task.protocol, rank_by))
+    detect = make_detector(model, metadata, task.protocol, rank_by)
+    return SimCell(task.scene, task.mass_kg, task.protocol, volume, detect), metadata
+
+
+def run_round(task: RoundTask) -> dict:
+    torch.set_num_threads(1)  # one core per round: the pool gives the parallelism
+    t0 = time.process_time()
+    cell, metadata = make_cell(task)
     settle_s = cell.settle()
     left_before_start = cell.remove_fallen()  # not counted: no method could have grasped them
     names = cell.objects_on_table()

@@ -305,6 +305,14 @@ class SimWorld:
             return object_states(self._model, self._plant_context(), self.names, self._removed,
                                  self._hull_vertices)
 
+    def object_meshes(self) -> dict:
+        """{name: (visual trimesh, X_task_mesh 4x4)} of the objects still in the scene, as
+        the camera renders them now."""
+        with self.lock:
+            names = self.object_names()
+            posed = self._meshes.posed(self._plant_context(), names)
+        return dict(zip(names, posed[1:1 + len(names)]))  # after the table, before the hand
+
     def set_object_mass(self, name: str, mass_kg: float) -> None:
         """Scale an object's mass (and inertia) to `mass_kg`; name '' = every object."""
         if not (np.isfinite(mass_kg) and mass_kg > 0):
