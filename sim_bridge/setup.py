@@ -30,6 +30,7 @@ setup(
             "label_settings_study = sim_bridge.datagen.label_settings_study:main",
             "symmetry_study = sim_bridge.datagen.symmetry_study:main",
             "table_size_study = sim_bridge.datagen.table_size_study:main",
+            "perturbation_study = sim_bridge.datagen.perturbation_study:main",
             "label_execution_study = sim_bridge.benchmark.label_execution_study:main",
             "replay_round = sim_bridge.benchmark.replay:main",
         ],

@@ -174,3 +174,27 @@ def test_a_finished_table_grows_by_whole_blocks(good_meshes, reference, tmp_path
     # a different block size would change what the blocks are: refused
     with pytest.raises(ValueError, match="block-size"):
         run_object_stage(tmp_path, mesh_sources(good_meshes), 8, SEED, workers=1, block_size=4, progress=False)
+
+
+def test_perturbation_study_reproduces_held_grasps_and_loses_them_far_off(tmp_path, capsys):
+    """Held candidates of a committed table (a 43 mm procedural cube, rebuilt from its
+    index) still hold unmoved, in the table's own settings; moved 60 mm across the pads
+    (the cube lies outside their 22 mm width) or 60 mm shallower (past the finger tips)
+    none does. Bad input is one error."""
+    import json
+
+    from sim_bridge.datagen import perturbation_study as ps
+
+    out = tmp_path / "study.json"
+    tables = pathlib.Path(__file__).resolve().parents[2] / "models" / "grasp_tables_v3"
+    argv = ["--tables", str(tables), "--only", "proc0_00012", "--per-object", "2",
+            "--shifts-mm", "0,60", "--workers", "1", "--out", str(out), "--no-progress"]
+    assert ps.main(argv) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == "held_fraction_across_60mm=0.000"
+    total = json.loads(out.read_text())["total"]
+    assert total["unmoved 0"] == [2, 2]
+    assert total["across+ 60"] == [0, 2] and total["across- 60"] == [0, 2] and total["shallower 60"] == [0, 2]
+    with pytest.raises(SystemExit):
+        ps.main(argv[:2] + ["--only", "no_such_object"])
+    assert "no table for" in capsys.readouterr().err
