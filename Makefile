@@ -27,6 +27,7 @@ help:
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
 	@echo "make symmetry-study - grasps copied to an object's symmetries, simulated against their originals (COPIES=rotation|mirror)"
+	@echo "make perturbation-study - held grasps moved 7.5 / 15 mm across the pads and shallower: how many still hold"
 	@echo "make label-execution-study - a sample of SCENES_OUT's labels executed as the benchmark executes grasps, per mode and weight (PER_MODE=40)"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - v2 training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
@@ -145,7 +146,7 @@ data-scenes-v4: setup
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
-.PHONY: bench-datagen label-settings-study symmetry-study label-execution-study data-objects-v1 data-scenes-v1
+.PHONY: bench-datagen label-settings-study symmetry-study perturbation-study label-execution-study data-objects-v1 data-scenes-v1
 bench-datagen: setup
 	@$(ROS) ros2 run sim_bridge bench_datagen --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
 	  --workers $(WORKERS) --json out/bench_datagen.json
@@ -160,6 +161,13 @@ label-settings-study: setup
 symmetry-study: setup
 	@$(ROS) ros2 run sim_bridge symmetry_study --tables models/grasp_tables_v2 --copies $(COPIES) \
 	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS) --out out/symmetry_study$(if $(filter mirror,$(COPIES)),_mirror).json
+
+# Where does holding stop? Held candidates of the v3 tables moved 7.5 and 15 mm across the
+# pads and shallower, closed again (8 objects x 10 candidates x 6 moves, ~10 CPU-min).
+# Last line: held_fraction_across_15mm=.
+perturbation-study: setup
+	@$(ROS) ros2 run sim_bridge perturbation_study --tables models/grasp_tables_v3 --meshes ../shared/meshes/vgn_train \
+	  --exclude $(HELD_OUT) --workers $(WORKERS) --out out/perturbation_study.json
 
 # Do labels execute? A sample of SCENES_OUT's labels run as the benchmark runs a grasp, per
 # mode and weight (PER_MODE labels x 2 weights, ~1 CPU-min each). Last line:
