@@ -27,6 +27,7 @@
 #    targets are about these three, then the ablations; then all six methods on unseen
 #    procedural objects (sim_bridge/results/procedural_v4).
 set -euo pipefail
+export PYTHONUNBUFFERED=1  # the log shows each epoch when it ends, not in 4 KiB bursts
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
 candidates="${CANDIDATES:-320}"
