@@ -186,15 +186,20 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
     )
 
 
+def surface_voxel_centres(grid, voxel_size_m, origin=(0.0, 0.0, 0.0)):
+    """(M, 3) float64: centres of the observed on-or-behind-surface voxels (0 < v <= 0.5),
+    what step 5 counts in the closing region."""
+    g = np.asarray(grid)
+    return np.asarray(origin, float) + (np.argwhere((g > 0) & (g <= 0.5)) + 0.5) * voxel_size_m
+
+
 def surface_voxels_in_closing_region(grid, poses_grid, voxel_size_m):
     """(N,) int: observed on-or-behind-surface voxels (0 < v <= 0.5) whose centres lie
     in the closing region of the open hand at each pose (4x4, grid frame)."""
-    g = np.asarray(grid)
     poses = np.asarray(poses_grid, dtype=np.float32).reshape(-1, 4, 4)
-    idx = np.argwhere((g > 0) & (g <= 0.5))
-    if not len(idx) or not len(poses):
+    centres = surface_voxel_centres(grid, voxel_size_m).astype(np.float32)
+    if not len(centres) or not len(poses):
         return np.zeros(len(poses), int)
-    centres = ((idx + 0.5) * voxel_size_m).astype(np.float32)
     lo, hi = CLOSING_REGION_TCP.astype(np.float32)
     # all poses at once, in the TCP frames: q[j, n, m] = (R_n^T (c_m - t_n))_j, as one
     # (3N, 3) x (3, M) product, then the box test axis by axis on contiguous rows (a

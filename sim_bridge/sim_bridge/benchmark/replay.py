@@ -30,7 +30,7 @@ import numpy as np
 import torch
 import trimesh
 
-from gravgrasp_detector.detection import CLOSING_REGION_TCP
+from gravgrasp_detector.detection import CLOSING_REGION_TCP, surface_voxel_centres
 from gravgrasp_detector.model_file import file_sha256
 
 from .clearing import clear_table
@@ -56,20 +56,32 @@ def _extent_mm(q):
             "max": np.round(q.max(axis=0) * 1000).astype(int).tolist()}
 
 
-def closing_region_contents(X_task_tcp, tsdf, object_meshes) -> dict:
+def closing_region_contents(X_task_tcp, tsdf, object_points) -> dict:
     """What the detector saw and what was really in the closing region at X_task_tcp.
-    tsdf: (grid, voxel_size_m, origin); object_meshes: {name: (trimesh, X_task_mesh)}."""
-    grid, voxel_size_m, origin = tsdf
-    idx = np.argwhere((grid > 0) & (grid <= 0.5))
-    inside, q = in_closing_region(X_task_tcp, np.asarray(origin) + (idx + 0.5) * voxel_size_m)
+    tsdf: (grid, voxel_size_m, origin); object_points: {name: (M, 3) surface samples, task frame}."""
+    inside, q = in_closing_region(X_task_tcp, surface_voxel_centres(*tsdf))
     observed = {"voxels": int(inside.sum()), **(_extent_mm(q[inside]) if inside.any() else {})}
     objects = {}
-    for name, (mesh, X_task_mesh) in object_meshes.items():
-        points = trimesh.sample.sample_surface(mesh, MESH_SAMPLES, seed=0)[0]
-        inside, q = in_closing_region(X_task_tcp, points @ X_task_mesh[:3, :3].T + X_task_mesh[:3, 3])
+    for name, points in object_points.items():
+        inside, q = in_closing_region(X_task_tcp, points)
         if inside.any():
             objects[name] = {"samples": int(inside.sum()), **_extent_mm(q[inside])}
     return {"observed": observed, "objects": objects}
+
+
+class _SurfaceSamples:
+    """Each object's mesh sampled once (its own frame), posed where the world has it now."""
+
+    def __init__(self, world):
+        self.world, self._local = world, {}
+
+    def now(self) -> dict:
+        out = {}
+        for name, (mesh, X) in self.world.object_meshes().items():
+            if name not in self._local:
+                self._local[name] = trimesh.sample.sample_surface(mesh, MESH_SAMPLES, seed=0)[0]
+            out[name] = self._local[name] @ X[:3, :3].T + X[:3, 3]
+        return out
 
 
 def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_attempts=None, dump_dir=None,
@@ -100,10 +112,10 @@ def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_at
     cell, _ = make_cell(task)
     if dump_dir is not None:
         pathlib.Path(dump_dir).mkdir(parents=True, exist_ok=True)
-    done, execute = [], cell.execute
+    done, execute, samples = [], cell.execute, _SurfaceSamples(cell.world)
 
     def observed_execute(grasp, tsdf):
-        contents = closing_region_contents(np.asarray(grasp.pose), tsdf, cell.world.object_meshes())
+        contents = closing_region_contents(np.asarray(grasp.pose), tsdf, samples.now())
         result = execute(grasp, tsdf)  # Refused propagates: clear_table tries the next grasp
         n = len(done) + 1
         before = recorded["attempts"][n - 1] if n <= len(recorded["attempts"]) else {}
