@@ -33,6 +33,7 @@ DIRECTIONS = {"across+": (1.0, 0.0, 0.0), "across-": (-1.0, 0.0, 0.0), "shallowe
 
 @dataclass(frozen=True)
 class ObjectTask:
+    name: str
     table_path: str
     mesh_dirs: tuple
     candidates: tuple  # indices of held candidates
@@ -62,30 +63,28 @@ def run_object_task(task: ObjectTask):
                     counts[key] = (held + bool(sim.evaluate(shifted(X, direction, d)).grasped), tried + 1)
         return "ok", {k: list(v) for k, v in counts.items()}
     except Exception as e:  # reported; the other objects go on
-        return "error", f"{pathlib.Path(task.table_path).stem}: {type(e).__name__}: {e}"
+        return "error", f"{task.name}: {type(e).__name__}: {e}"
 
 
-def pick_tasks(tables_dir, mesh_dirs, n_objects, per_object, shifts_m, seed, exclude=(), only=()):
+def pick_tasks(tables_dir, mesh_dirs, n_objects, per_object, shifts_m, seed, exclude=frozenset(), only=frozenset()):
     """ObjectTasks for n_objects tables drawn at random (or those named in `only`), each
     with per_object of its held candidates drawn at random."""
     rng = np.random.default_rng(seed)
     files = sorted(pathlib.Path(tables_dir, "objects").glob("*.npz"))
-    if only:
-        files = [f for f in files if str(load_table(f)["name"]) in set(only)]
-        if len(files) < len(set(only)):
-            raise ValueError(f"{tables_dir}: no table for some of {', '.join(only)}")
-    else:
-        files = list(rng.permutation(files))
+    if not only:
+        files = rng.permutation(files)
     tasks = []
     for f in files:
-        if len(tasks) == (len(files) if only else n_objects):
-            break
         table = load_table(f)
-        held = np.flatnonzero(table["grasped"])
-        if str(table["name"]) in set(exclude) or len(held) < per_object:
+        name, held = str(table["name"]), np.flatnonzero(table["grasped"])
+        if (only and name not in only) or name in exclude or len(held) < per_object:
             continue
         picked = tuple(int(i) for i in np.sort(rng.choice(held, per_object, replace=False)))
-        tasks.append(ObjectTask(str(f), tuple(mesh_dirs), picked, tuple(shifts_m)))
+        tasks.append(ObjectTask(name, str(f), tuple(mesh_dirs), picked, tuple(shifts_m)))
+        if not only and len(tasks) == n_objects:
+            break
+    if only and len(tasks) < len(set(only)):
+        raise ValueError(f"{tables_dir}: no table for some of {', '.join(sorted(only))} (or fewer than {per_object} held candidates)")
     return tasks
 
 
@@ -120,8 +119,8 @@ def main(argv=None) -> int:
         p.error(f"--shifts-mm {args.shifts_mm!r}: give millimetres, e.g. 7.5,15")
     if not pathlib.Path(args.tables, "objects").is_dir():
         p.error(f"{args.tables} holds no grasp tables (no objects/ directory)")
-    exclude = pathlib.Path(args.exclude).read_text().split() if args.exclude else ()
-    only = tuple(n for n in (args.only or "").split(",") if n)
+    exclude = set(pathlib.Path(args.exclude).read_text().split()) if args.exclude else set()
+    only = {n for n in (args.only or "").split(",") if n}
     try:
         tasks = pick_tasks(args.tables, args.meshes, args.objects, args.per_object, shifts_m, args.seed, exclude, only)
     except ValueError as e:
@@ -131,7 +130,7 @@ def main(argv=None) -> int:
     def on_result(task, result):
         status, payload = result
         if status == "ok":
-            per_object[str(load_table(task.table_path)["name"])] = payload
+            per_object[task.name] = payload
         else:
             errors.append(payload)
 
