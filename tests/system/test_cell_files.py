@@ -116,7 +116,8 @@ def test_sim_sample_end_to_end(ros_process, ros_node, spin, tmp_path):
         str(installed / "gravgrasp_detector/lib/gravgrasp_detector/stack"), "--ros-args", "--params-file", str(SIM),
         "-p", f"execute:gripper_port:={link}"])
     stack.wait_for_output("execute ready", timeout_s=120)
-    assert "detect.min_score_n 1.47 N" in stack.output()
+    # The stack logs its cell notes just after the nodes' "ready" lines.
+    stack.wait_for_output(r"detect\.min_score_n 1\.47 N", timeout_s=30)
     seen = {}
     ros_node.create_subscription(GraspArray, "grasps", lambda m: seen.__setitem__("grasps", m), 10)
     ros_node.create_subscription(ObjectStates, "object_states", lambda m: seen.__setitem__("states", m), 10)

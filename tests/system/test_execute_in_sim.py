@@ -117,7 +117,7 @@ def test_refusals_then_a_successful_lift(world):
     worker = threading.Thread(target=lambda: results.setdefault(
         "first", call(client, request(p, q), timeout_s=240)))
     worker.start()
-    wait_for_motion(world, moves)  # the first call is executing (it takes tens of seconds)
+    wait_for_motion(world, moves, results)  # the first call is executing (it takes tens of seconds)
     other = node.create_client(ExecuteGrasp, "execute_grasp")
     busy = call(other, request(p, q), timeout_s=30)
     worker.join(260)
@@ -150,7 +150,7 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     moves = motions_so_far(world)
     worker = threading.Thread(target=lambda: results.setdefault("r", call(client, request(p, q), 240)))
     worker.start()
-    wait_for_motion(world, moves)
+    wait_for_motion(world, moves, results)
     assert call(node.create_client(Trigger, "inject_gripper_fault"), Trigger.Request()).success
     worker.join(250)
     fault = results["r"]
@@ -173,7 +173,7 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     moves = motions_so_far(world)
     worker = threading.Thread(target=lambda: results.setdefault("r", call(client, request(p, q), 240)))
     worker.start()
-    wait_for_motion(world, moves)
+    wait_for_motion(world, moves, results)
     estop.publish(Bool(data=True))
     worker.join(250)
     assert results["r"].result_code in (R.NOT_ARMED, R.GRIPPER_FAULT), results["r"].message
@@ -188,9 +188,17 @@ def motions_so_far(world) -> int:
     return world["procs"][0].output().count(MOTION_LINE)
 
 
-def wait_for_motion(world, before: int, timeout_s: float = 60.0):
-    """Until the arm stand-in starts a motion after the `before`th: an execution is under way."""
-    assert wait_until(lambda: motions_so_far(world) > before, timeout_s), "the executor moved no arm"
+def wait_for_motion(world, before: int, results: dict, timeout_s: float = 150.0):
+    """Until the arm stand-in starts a motion after the `before`th: an execution is under way.
+    If the request came back without moving (in `results`), its answer is the failure.
+    Generous: after a fault the executor reconnects and re-activates the gripper before it
+    moves, and under CI load the sim runs at a fraction of real time (once it took > 60 s)."""
+    moved = wait_until(lambda: motions_so_far(world) > before or results, timeout_s)
+    if not (moved and motions_so_far(world) > before):
+        answers = {k: f"{v.result_code}: {v.message}" for k, v in results.items()}
+        log = world["procs"][-1].output().splitlines()[-8:]
+        pytest.fail(f"the executor moved no arm in {timeout_s:.0f} s; answered: {answers or 'nothing yet'}; "
+                    "the execute log ends:\n" + "\n".join(log))
 
 
 def stamp_ns(msg):
