@@ -23,6 +23,7 @@ help:
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
 	@echo "make data-tables-v3 / data-scenes-v4 - v2 tables grown to 320 candidates; the v3 scenes relabelled with them"
+	@echo "make data-tables-v5 / data-scenes-v5 - v4's tables plus held candidates moved 15 mm (datagen perturb); the v3 scenes relabelled"
 	@echo "make data-objects  - v2 per-object grasp tables (resumable; GRASPS=64 WORKERS=2; many CPU-hours)"
 	@echo "make bench-datagen - label yield: v1 free sampler vs v2 resting-pose sampler, side by side"
 	@echo "make label-settings-study - cheaper label settings checked against the v1 scores"
@@ -135,7 +136,7 @@ data-report: setup
 # scenes relabelled from their committed recipes with them (the same settled scenes, no
 # physics, ~1 CPU-s a scene). ros_ws/dataset_v4_chain.sh runs both, then training.
 TABLES_V3_GRASPS ?= 320
-.PHONY: data-tables-v3 data-scenes-v4
+.PHONY: data-tables-v3 data-scenes-v4 data-tables-v5 data-scenes-v5
 data-tables-v3: setup
 	@$(ROS) ros2 run sim_bridge datagen objects --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
 	  --procedural $(PROCEDURAL) --limit $(OBJECTS) --grasps-per-object $(TABLES_V3_GRASPS) $(LABEL_SETTINGS) \
@@ -143,6 +144,17 @@ data-tables-v3: setup
 data-scenes-v4: setup
 	@$(ROS) ros2 run sim_bridge datagen recipes restore models/scene_recipes_v3 out/scenes_v4 \
 	  --objects models/grasp_tables_v3 --meshes $(CURDIR)/../shared/meshes/vgn_train --workers $(WORKERS) --relabel
+# v5 = v4's tables (copied once) + perturbed rows beside them (ros_ws/dataset_v5_chain.sh runs both and trains)
+PERTURBED_PER_OBJECT ?= 32
+data-tables-v5: setup
+	@[ -d models/grasp_tables_v5/objects ] || { mkdir -p models/grasp_tables_v5 && \
+	  cp -r models/grasp_tables_v3/objects models/grasp_tables_v3/symmetry models/grasp_tables_v5/ && \
+	  rm -rf models/grasp_tables_v5/objects/.parts models/grasp_tables_v5/objects/perturbed; }
+	@$(ROS) ros2 run sim_bridge datagen perturb --objects models/grasp_tables_v5 --meshes ../shared/meshes/vgn_train \
+	  --exclude $(HELD_OUT) --per-object $(PERTURBED_PER_OBJECT) --seed 0 --workers $(WORKERS)
+data-scenes-v5: setup
+	@$(ROS) ros2 run sim_bridge datagen recipes restore models/scene_recipes_v3 out/scenes_v5 \
+	  --objects models/grasp_tables_v5 --meshes $(CURDIR)/../shared/meshes/vgn_train --workers $(WORKERS) --relabel
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.

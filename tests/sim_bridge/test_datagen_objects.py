@@ -198,3 +198,44 @@ def test_perturbation_study_reproduces_held_grasps_and_loses_them_far_off(tmp_pa
     with pytest.raises(SystemExit):
         ps.main(argv[:2] + ["--only", "no_such_object"])
     assert "no table for" in capsys.readouterr().err
+
+
+def test_perturb_stage_moves_held_candidates_and_resumes(tmp_path, capsys):
+    """`datagen perturb` on a copy of a committed table (the 43 mm procedural cube): held
+    candidates moved 15 mm in their TCP frame, closed on in Drake, written beside the table;
+    a rerun keeps the file; the labelling table is the table with those rows after it."""
+    import shutil
+
+    from sim_bridge.datagen.cli import main as datagen
+    from sim_bridge.datagen.perturbed_grasps import load_labelling_table, perturbed_path
+
+    committed = pathlib.Path(__file__).resolve().parents[2] / "models" / "grasp_tables_v3" / "objects"
+    objects = tmp_path / "tables" / "objects"
+    objects.mkdir(parents=True)
+    shutil.copy(committed / "proc0_00012.npz", objects)
+    args = ["perturb", "--objects", str(tmp_path / "tables"), "--per-object", "3", "--workers", "1", "--no-progress"]
+    assert datagen(args) == 0
+    assert "perturb: objects_done=1 kept=0 error=0 candidates=3" in capsys.readouterr().out
+    out = perturbed_path(objects, "proc0_00012")
+    z = dict(np.load(out))
+    table = load_table(objects / "proc0_00012.npz")
+    assert len(z["grasped"]) == 3 and table["grasped"][z["parent"]].all()  # moved from held rows
+    np.testing.assert_allclose(np.linalg.norm(z["shift_tcp_m"], axis=1), 0.015, atol=1e-6)
+    for parent, shift, X in zip(z["parent"], z["shift_tcp_m"], z["X_object_tcp_candidate"]):
+        X0 = table["X_object_tcp_candidate"][parent]
+        np.testing.assert_allclose(X[:3, 3] - X0[:3, 3], X0[:3, :3] @ shift, atol=1e-5)  # in its TCP frame
+        assert shift[1] == 0 and shift[2] <= 0  # across the pads or shallower, never along the closing
+    assert not any(str(r).startswith("simulation error") for r in z["reason"])
+
+    mtime = out.stat().st_mtime_ns
+    assert datagen(args) == 0
+    assert "objects_done=0 kept=1" in capsys.readouterr().out and out.stat().st_mtime_ns == mtime
+    merged = load_labelling_table(objects, "proc0_00012")
+    n = len(table["grasped"])
+    assert merged["table_rows"] == n and len(merged["grasped"]) == n + 3
+    assert np.array_equal(merged["X_object_tcp_candidate"][n:], z["X_object_tcp_candidate"])
+    assert merged["finger_joint_angles"].shape == (n + 3, table["finger_joint_angles"].shape[1])
+
+    with pytest.raises(SystemExit):
+        datagen(["perturb", "--objects", str(tmp_path / "nowhere")])
+    assert "holds no grasp tables" in capsys.readouterr().err

@@ -152,6 +152,49 @@ def test_relabel_gives_the_same_scenes_the_labels_of_other_tables(grasp_data, ma
     assert "another shape" in capsys.readouterr().err
 
 
+def test_perturbed_rows_need_relabel_and_then_label_beside_the_table(grasp_data, made, tmp_path, capsys):  # noqa: F811
+    """Perturbed rows beside the tables change what labels a scene: restore refuses without
+    --relabel, and relabelling labels with them (held ones as positives past the table's
+    rows, failed ones as extra negatives)."""
+    from sim_bridge.datagen.perturbed_grasps import perturbed_path
+
+    recipes = tmp_path / "recipes"
+    scene_recipes.pack(made, recipes)
+    objects = tmp_path / "with_perturbed"
+    shutil.copytree(grasp_data / "objects", objects)
+    (objects / "objects" / "perturbed").mkdir()
+    n_rows = {}
+    for f in sorted((objects / "objects").glob("*.npz")):
+        t = dict(np.load(f))
+        held = np.flatnonzero(t["grasped"])
+        n_rows[f.stem] = len(t["grasped"])
+        moved = {k: np.concatenate([t[k][held]] * 2) for k in
+                 ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "mode", "finger_joint_angles")}
+        # the first copy: held where it was, 5 N stronger (stands for a row that held after
+        # the move; it wins its voxel); the second: 15 mm shallower, failed
+        moved["scores_n"][:len(held)] += 5.0
+        shallower = moved["X_object_tcp_candidate"][len(held):]
+        shallower[:, :3, 3] -= 0.015 * shallower[:, :3, 2]
+        grasped = np.arange(2 * len(held)) < len(held)
+        np.savez(perturbed_path(objects / "objects", f.stem), **moved, grasped=grasped,
+                 finger_joint_names=t["finger_joint_names"], parent=np.concatenate([held, held]))
+    args = ["recipes", "restore", str(recipes), str(tmp_path / "out"), "--objects", str(objects),
+            "--meshes", str(grasp_data / "meshes"), "--no-progress"]
+    assert datagen(args) == 2
+    assert "differ from those that labelled these scenes" in capsys.readouterr().err
+    assert datagen(args + ["--relabel"]) == 0
+    capsys.readouterr()
+    past, negatives = 0, {"before": 0, "after": 0}
+    for i in range(4):
+        with np.load(made / "scenes" / f"{i:06d}.npz") as a, np.load(tmp_path / "out" / "scenes" / f"{i:06d}.npz") as b:
+            names = [str(n) for n in b["object_names"]]
+            past += sum(int(g) >= n_rows[names[k]] for k, g in zip(b["label_object"], b["label_grasp"]))
+            negatives["before"] += len(a["negative_index"])
+            negatives["after"] += len(b["negative_index"])
+    assert past > 0, "no label came from a perturbed row"
+    assert negatives["after"] > negatives["before"], negatives
+
+
 def test_table_size_study_relabels_with_cut_tables(grasp_data, made, tmp_path, capsys):  # noqa: F811
     from sim_bridge.datagen import table_size_study
     recipes = tmp_path / "recipes"

@@ -1,7 +1,10 @@
-"""Dataset generation command (paper Sec. III): `ros2 run sim_bridge datagen objects|scenes|recipes`.
+"""Dataset generation command (paper Sec. III): `ros2 run sim_bridge datagen objects|perturb|scenes|recipes`.
 
   objects  per-object grasp tables: antipodal candidates, closed on in the Drake
            grasp simulation, 6-direction disturbance-rejection scores.
+  perturb  held candidates of those tables moved ~15 mm (across the pads or shallower)
+           and closed on again: rows near the edge of holding, which the scene stage
+           labels with the tables' own (perturbed_grasps).
   scenes   packed / pile scenes on a table from those tables: TSDF from rendered
            depth, grasps projected and collision-filtered, gravity projection,
            sparse voxel labels.
@@ -33,7 +36,7 @@ from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings
 from .object_grasps import ObjectChunk, ObjectStageStore, RestTask, run_chunk, run_rest_task
 from .object_sources import mesh_sources, procedural_sources, read_name_list
-from . import scene_recipes
+from . import perturbed_grasps, scene_recipes
 from .scene_dataset import OBJECT_COUNTS, run_scene_stage
 
 
@@ -200,6 +203,19 @@ def main(argv=None):
                    help="resting: candidates per resting pose on a table, approach inside the executor's "
                         "cone (default); free: approach at any angle (the v1 dataset)")
 
+    pt = sub.add_parser("perturb", help="held candidates moved to the edge of holding, simulated again")
+    pt.add_argument("--objects", required=True, help="output directory of the objects stage (holds objects/); "
+                                                     "the rows go to its objects/perturbed/")
+    pt.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
+    pt.add_argument("--exclude", action="append", default=[], metavar="FILE",
+                    help="leave out the objects named in FILE (e.g. models/vgn_heldout_meshes.txt); repeatable")
+    pt.add_argument("--per-object", type=int, default=64, help="held candidates moved per object")
+    pt.add_argument("--shift-mm", type=float, default=15.0,
+                    help="how far each is moved: across the pads (+x or -x) or shallower (-z), drawn per candidate")
+    pt.add_argument("--seed", type=int, default=0, help="master seed")
+    pt.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    pt.add_argument("--no-progress", action="store_true")
+
     sc = sub.add_parser("scenes", help="scenes with TSDF and voxel labels from grasp tables")
     common(sc)
     sc.add_argument("--objects", required=True, help="output directory of the objects stage (holds objects/)")
@@ -255,6 +271,8 @@ def main(argv=None):
 def _run(p, args):
     if args.stage == "recipes":
         return _run_recipes(args)
+    if args.stage == "perturb":
+        return _run_perturb(p, args)
     if args.stage == "objects":
         try:
             sources = _object_sources(args)
@@ -279,6 +297,23 @@ def _run(p, args):
                         object_count=args.object_count)
     print(f"scenes: done={s['done']} error={s['error']} labels={s['labels']}")
     return 1 if s["error"] else 0
+
+
+def _run_perturb(p, args):
+    if args.per_object < 1 or not args.shift_mm > 0:
+        p.error(f"--per-object {args.per_object} / --shift-mm {args.shift_mm:g}: give a count >= 1 and a distance > 0")
+    try:
+        exclude = set().union(*(read_name_list(f) for f in args.exclude))
+        s = perturbed_grasps.run_perturb_stage(args.objects, args.meshes, args.per_object, args.shift_mm / 1000,
+                                               args.seed, args.workers, exclude, progress=not args.no_progress)
+    except (FileNotFoundError, ObjectError) as e:
+        p.error(str(e))
+    for e in s["errors"]:
+        print(e)
+    held = f"{s['held'] / s['tried']:.3f}" if s["tried"] else "n/a"
+    print(f"perturb: objects_done={s['done']} kept={s['kept']} error={len(s['errors'])} "
+          f"candidates={s['tried']} held_fraction={held}")
+    return 1 if s["errors"] else 0
 
 
 def _run_recipes(args):

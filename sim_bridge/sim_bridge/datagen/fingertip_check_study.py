@@ -24,7 +24,8 @@ from robotiq_driver.hand_geometry import pad_tip_z_m
 
 from ..physics.hand_model import FingerKinematics
 from ..physics.scenes import VOLUME_SIZE_M
-from .object_grasps import MODE_NAMES, load_table
+from .object_grasps import MODE_NAMES
+from .perturbed_grasps import load_labelling_table
 from .voxel_labels import RESOLUTION, label_poses
 
 
@@ -44,7 +45,7 @@ def compare(scene_dir, objects_dir, max_scenes=0):
             if not len(rows):
                 continue
             if name not in tables:
-                tables[name] = load_table(pathlib.Path(objects_dir) / "objects" / f"{name}.npz")
+                tables[name] = load_labelling_table(pathlib.Path(objects_dir) / "objects", name)
             t = tables[name]
             tips = fingers.pad_tips_tcp(t["finger_joint_names"], t["finger_joint_angles"][z["label_grasp"][rows]])
             error_mm = 1000 * (pad_tip_z_m(opening[rows]) - tips[:, :, 2].max(axis=1))

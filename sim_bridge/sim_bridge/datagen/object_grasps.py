@@ -124,7 +124,7 @@ def _run_chunk(task, obj):
         rest_pose = np.full(len(X), -1)
     factory = task.simulator_factory or GraspSimulator
     sim = factory(obj, settings) if len(X) else None
-    rows = [dict(_evaluate(sim, x), rest_pose=np.int16(k)) for x, k in zip(X, rest_pose)]
+    rows = [dict(evaluate_candidate(sim, x), rest_pose=np.int16(k)) for x, k in zip(X, rest_pose)]
     rest = task.rest
     meta = dict(mass_kg=obj.mass_kg, com_m=np.asarray(obj.com_m, float),
                 shape_sha256=shape_sha256(obj),
@@ -134,7 +134,7 @@ def _run_chunk(task, obj):
     return "ok", (rows, meta)
 
 
-def _evaluate(sim, X):
+def evaluate_candidate(sim, X):
     """One grasp; a simulation that raises is a failed grasp with the error as its
     reason (deterministic, so retrying would fail again and block the object)."""
     try:
@@ -223,7 +223,7 @@ class ObjectStageStore:
         return self.rest_path(name).exists()
 
     def write_part(self, task: ObjectChunk, rows, meta):
-        arrays = _stack_rows(rows)
+        arrays = stack_rows(rows)
         arrays.update({f"meta_{k}": np.asarray(v) for k, v in meta.items()})
         atomic_files.save_npz(self.part_path(task.source.name, task.chunk), **arrays)
 
@@ -299,7 +299,7 @@ ROW_KEYS = ("X_object_tcp_candidate", "X_object_tcp", "scores_n", "departed", "m
             "contacts", "reason", "wall_time_s", "rest_pose")
 
 
-def _stack_rows(rows):
+def stack_rows(rows):
     out = {k: np.asarray([r[k] for r in rows]) for k in ROW_KEYS}
     if not rows:
         out.update(X_object_tcp_candidate=np.zeros((0, 4, 4), np.float32), X_object_tcp=np.zeros((0, 4, 4), np.float32),

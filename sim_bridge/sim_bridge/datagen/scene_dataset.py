@@ -70,7 +70,8 @@ from ..physics.gravity_projection import GRAVITY_DIRECTION_TASK, GRAVITY_PROJECT
 from ..physics.hand_model import FingerKinematics
 from ..physics.scenes import ARRANGEMENTS, TABLE_HEIGHT_M, VOLUME_SIZE_M, SceneSettings, arrange
 from . import object_symmetry
-from .object_grasps import MODE_NAMES, load_table
+from .object_grasps import MODE_NAMES
+from .perturbed_grasps import load_labelling_table
 from .object_sources import object_from_table, shape_sha256
 from .resting_poses import RestingPoses
 from .voxel_labels import RESOLUTION, at_voxel_centres, voxel_labels
@@ -139,7 +140,7 @@ def _run_scene(task):
         n_req = requested_object_count(rng, task.object_count, task.max_objects)
         arrangement = str(rng.choice(ARRANGEMENTS))
         pick = rng.choice(len(task.table_names), size=min(n_req, len(task.table_names)), replace=False)
-        tables = [load_table(pathlib.Path(task.objects_dir) / f"{task.table_names[i]}.npz") for i in pick]
+        tables = [load_labelling_table(task.objects_dir, task.table_names[i]) for i in pick]
         specs = [object_from_table(t, task.mesh_dirs) for t in tables]
         try:
             keep, poses = arrange(specs, arrangement, rng, task.settings, rest=[_resting_poses(t) for t in tables])

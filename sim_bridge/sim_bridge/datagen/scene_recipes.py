@@ -38,7 +38,7 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 
 from ..parallel import make_executor, run_tasks
-from .object_grasps import load_table
+from .perturbed_grasps import load_labelling_table, perturbed_path
 from .object_sources import object_from_table
 from .scene_dataset import SceneStore, SceneTask, label_scene, usable_tables
 
@@ -62,13 +62,18 @@ def label_digest(scene) -> str:
 
 
 def tables_fingerprint(objects_dir) -> dict:
-    """{name: "shape:candidates:held"} of the usable grasp tables in objects_dir: what the
-    labels of a scene depend on, cheap to compare (a grown table changes its counts)."""
+    """{name: "shape:candidates:held"} of the usable grasp tables in objects_dir, with
+    ":perturbed:candidates:held" where the table has perturbed rows: what the labels of a
+    scene depend on, cheap to compare (a grown table changes its counts)."""
     out = {}
     for name in usable_tables(objects_dir):
         with np.load(pathlib.Path(objects_dir) / f"{name}.npz") as t:
             shape = str(t["shape_sha256"])[:16] if "shape_sha256" in t.files else "-"
             out[name] = f"{shape}:{len(t['grasped'])}:{int(t['grasped'].sum())}"
+        extra = perturbed_path(objects_dir, name)
+        if extra.exists():
+            with np.load(extra) as t:
+                out[name] += f":perturbed:{len(t['grasped'])}:{int(t['grasped'].sum())}"
     return out
 
 
@@ -204,7 +209,7 @@ class RestoreTask:
 def settled_scene(task: SceneTask, recipe: dict):
     """What label_scene takes, from a recipe: (tables, specs, poses, views)."""
     objects_dir = pathlib.Path(task.objects_dir)
-    tables = [load_table(objects_dir / f"{n}.npz") for n in recipe["object_names"]]
+    tables = [load_labelling_table(objects_dir, n) for n in recipe["object_names"]]
     specs = [object_from_table(t, task.mesh_dirs) for t in tables]
     return (tables, specs, list(np.asarray(recipe["X_task_object"], np.float64)),
             list(np.asarray(recipe["T_task_camera"], np.float64)))
