@@ -13,8 +13,9 @@
 # 2. out/scenes_v5: the 5,000 v3 scenes relabelled with those tables (~45 min, no physics);
 # 3. the data report;
 # 4. Ours v5 (the v3 schedule) into out/training_v5/ours, then its validation calibration
-#    and v4 Ours' on the same v5 validation scenes (out/calibration/gravgrasp_{v5,v4}_on_v5_val_scenes):
-#    validness precision at the same recall and top-1 picks decide whether v5 replaces v4;
+#    and v4 Ours' on the same v5 validation scenes (out/calibration/gravgrasp_{v5,v4}_on_v5_val_scenes),
+#    and v5's on v4's validation scenes: validness precision at the same recall and top-1
+#    picks decide whether v5 replaces v4;
 # 5. Binary v5 (the baseline must see the same labels if Ours v5 ships).
 set -euo pipefail
 export PYTHONUNBUFFERED=1
@@ -46,14 +47,15 @@ train() {  # train VARIANT [OPTION]: into out/training_v5/VARIANT (resumes per e
   python -m gravgrasp_detector.training --data out/scenes_v5 --out "out/training_v5/$1" --epochs 15 \
     --threads "$workers" --no-progress --negative-weight=250 "${@:2}"
 }
-calibrate() {  # calibrate MODEL NAME: validation calibration on the v5 scenes (kept once done)
-  [ -f "out/calibration/$2/calibration.json" ] && return
-  echo "[chain] $(date -u +%FT%TZ) calibration $2"
-  python -m gravgrasp_detector.score_calibration --model "$1" --data out/scenes_v5 --split val \
-    --out "out/calibration/$2"
+calibrate() {  # calibrate MODEL SCENES NAME: validation calibration (kept once done)
+  [ -f "out/calibration/$3/calibration.json" ] && return
+  echo "[chain] $(date -u +%FT%TZ) calibration $3"
+  python -m gravgrasp_detector.score_calibration --model "$1" --data "$2" --split val --out "out/calibration/$3"
 }
 train ours
-calibrate out/training_v5/ours/model.pt gravgrasp_v5_on_v5_val_scenes
-calibrate models/gravgrasp.pt gravgrasp_v4_on_v5_val_scenes
+calibrate out/training_v5/ours/model.pt out/scenes_v5 gravgrasp_v5_on_v5_val_scenes
+calibrate models/gravgrasp.pt out/scenes_v5 gravgrasp_v4_on_v5_val_scenes
+# and on v4's own validation labels: v5 must not lose what v4 had (v4 there: models/calibration/)
+calibrate out/training_v5/ours/model.pt out/scenes_v4 gravgrasp_v5_on_v4_val_scenes
 train binary --target=binary
 echo "[chain] $(date -u +%FT%TZ) done"
