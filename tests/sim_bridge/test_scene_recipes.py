@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from sim_bridge.datagen import scene_recipes
+from sim_bridge.datagen import data_report, scene_recipes
 from sim_bridge.datagen.cli import main as datagen
 from sim_bridge.datagen.scene_dataset import run_scene_stage
 
@@ -176,7 +176,9 @@ def test_perturbed_rows_need_relabel_and_then_label_beside_the_table(grasp_data,
         shallower = moved["X_object_tcp_candidate"][len(held):]
         shallower[:, :3, 3] -= 0.015 * shallower[:, :3, 2]
         grasped = np.arange(2 * len(held)) < len(held)
-        np.savez(perturbed_path(objects / "objects", f.stem), **moved, grasped=grasped,
+        shift = np.zeros((2 * len(held), 3))
+        shift[len(held):, 2] = -0.015
+        np.savez(perturbed_path(objects / "objects", f.stem), **moved, grasped=grasped, shift_tcp_m=shift,
                  finger_joint_names=t["finger_joint_names"], parent=np.concatenate([held, held]))
     args = ["recipes", "restore", str(recipes), str(tmp_path / "out"), "--objects", str(objects),
             "--meshes", str(grasp_data / "meshes"), "--no-progress"]
@@ -193,6 +195,12 @@ def test_perturbed_rows_need_relabel_and_then_label_beside_the_table(grasp_data,
             negatives["after"] += len(b["negative_index"])
     assert past > 0, "no label came from a perturbed row"
     assert negatives["after"] > negatives["before"], negatives
+    report = data_report.collect(objects, tmp_path / "out")  # counts them as this test did
+    assert report["labels_from_perturbed"] == past and report["negatives_per_scene"].sum() == negatives["after"]
+    text = data_report.report_text(report)
+    n_held = report["perturbed"]["unmoved"][0]
+    assert f"perturbed rows (datagen perturb) of 3 objects: shallower 0/{n_held} held (0%); unmoved {n_held}/{n_held}" \
+        in text and "labels from perturbed rows:" in text
 
 
 def test_table_size_study_relabels_with_cut_tables(grasp_data, made, tmp_path, capsys):  # noqa: F811

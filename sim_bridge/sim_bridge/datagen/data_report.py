@@ -32,30 +32,46 @@ def collect(data_dir, scenes_dir=None):
     tdir = _tables_dir(data_dir)
     per_mode = {"power": [], "precision": []}
     stats = dict(objects=0, simulated=0, grasped=0, power=0, precision=0, sim_wall_time_s=0.0,
-                 grasped_per_object=[], skipped=[])
+                 grasped_per_object=[], skipped=[], perturbed={}, perturbed_objects=0)
+    table_rows = {}
     for p in sorted(tdir.glob("*.npz")):
         with np.load(p) as t:
+            table_rows[p.stem] = len(t["grasped"])
             names = [str(n) for n in t["mode_names"]]
             mode, grasped, scores = t["mode"], t["grasped"], t["scores_n"]
             stats["objects"] += 1
             stats["simulated"] += len(mode)
             stats["grasped"] += int(grasped.sum())
             stats["grasped_per_object"].append(int(grasped.sum()))
-            stats["sim_wall_time_s"] += float(t["wall_time_s"].sum())
+            stats["sim_wall_time_s"] += float(t["wall_time_s"].sum()) if "wall_time_s" in t.files else 0.0
             for m in per_mode:
                 sel = grasped & (mode == names.index(m))
                 stats[m] += int(sel.sum())
                 per_mode[m].append(scores[sel])
     for p in sorted(tdir.glob("*.skip.json")):
         stats["skipped"].append(json.loads(p.read_text()))
+    for p in sorted((tdir / "perturbed").glob("*.npz")):  # datagen perturb's rows (perturbed_grasps)
+        with np.load(p) as t:
+            stats["perturbed_objects"] += 1
+            for shift, held in zip(t["shift_tcp_m"], t["grasped"]):
+                way = "across the pads" if shift[0] else "shallower" if shift[2] else "unmoved"
+                held_tried = stats["perturbed"].setdefault(way, [0, 0])
+                held_tried[0] += int(held)
+                held_tried[1] += 1
     stats["scores"] = {m: (np.concatenate(v) if v else np.zeros((0, 6))) for m, v in per_mode.items()}
     sdir = pathlib.Path(scenes_dir) if scenes_dir else pathlib.Path(data_dir) / "scenes"
     if (sdir / "scenes").is_dir():
         sdir = sdir / "scenes"
     labels, fg, fg_mode, arrangements, without_copies, copies, valid = [], [], [], [], [], [], []
+    negatives, from_perturbed = [], 0
     for p in sorted(sdir.glob("*.npz")) if sdir.is_dir() else []:
         with np.load(p) as z:
             labels.append(len(z["label_score"]))
+            negatives.append(len(z["negative_index"]) if "negative_index" in z.files else 0)
+            if stats["perturbed"]:  # a label_grasp past its table's rows came from a perturbed row
+                rows = np.array([table_rows.get(str(n), 1 << 30) for n in z["object_names"]])
+                if len(z["label_object"]):
+                    from_perturbed += int((z["label_grasp"] >= rows[z["label_object"]]).sum())
             fg.append(z["label_score"])
             fg_mode.append(z["label_mode"])
             arrangements.append(str(z["arrangement"]))
@@ -73,6 +89,8 @@ def collect(data_dir, scenes_dir=None):
     stats["labels_without_copies"] = np.asarray(without_copies)
     stats["labels_from_copies"] = int(np.sum(copies))
     stats["valid_grasps_per_scene"] = np.asarray(valid)
+    stats["negatives_per_scene"] = np.asarray(negatives)
+    stats["labels_from_perturbed"] = from_perturbed
     return stats
 
 
@@ -96,6 +114,10 @@ def report_text(s):
             lines.append(f"{m:9s} scores [N]: worst direction median {np.median(worst):.1f} "
                          f"(p10 {np.percentile(worst, 10):.1f}, p90 {np.percentile(worst, 90):.1f}); "
                          f"mean over directions median {np.median(sc.mean(axis=1)):.1f}")
+    if s["perturbed"]:
+        ways = "; ".join(f"{way} {held}/{tried} held ({100 * held / tried:.0f}%)"
+                         for way, (held, tried) in sorted(s["perturbed"].items()))
+        lines.append(f"perturbed rows (datagen perturb) of {s['perturbed_objects']} objects: {ways}")
     if s["skipped"]:
         lines.append(f"skipped objects: {len(s['skipped'])}")
         for e in s["skipped"]:
@@ -110,6 +132,11 @@ def report_text(s):
         if len(lf):
             lines.append(f"labels: {len(lf)}, power {100 * (lf == 0).mean():.1f}%; gravity-rejection score "
                          f"median {np.median(s['label_scores']):.1f} N")
+        neg = s["negatives_per_scene"]
+        lines.append(f"explicit validness negatives per scene: median {np.median(neg):.0f}, mean {neg.mean():.1f}")
+        if s["perturbed"] and len(lf):
+            lines.append(f"labels from perturbed rows: {s['labels_from_perturbed']} "
+                         f"({100 * s['labels_from_perturbed'] / len(lf):.1f}%)")
         w = s["labels_without_copies"]
         if len(w) == len(n) and len(lf):
             lines.append(f"symmetric copies: {100 * s['labels_from_copies'] / len(lf):.1f}% of labels; the simulated "
