@@ -32,8 +32,9 @@ from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import ROW_KEYS, evaluate_candidate, load_table, stack_rows
 from .object_sources import object_from_table
+from .perturbation_study import DIRECTIONS, shifted
 
-DIRECTIONS_TCP = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # across+, across-, shallower
+DIRECTIONS_TCP = np.array(list(DIRECTIONS.values()))  # the study's: across+, across-, shallower
 DIRECTORY = "perturbed"
 
 
@@ -73,12 +74,9 @@ def run_perturb_task(task: PerturbTask):
         table = load_table(task.table_path)
         parents, shifts = plan(table, task.per_object, task.shift_m, task.seed)
         settings = SimSettings(**json.loads(str(table["sim_settings"])))
-        sim = GraspSimulator(object_from_table(table, task.mesh_dirs), settings) if len(parents) else None
-        rows = []
-        for i, d in zip(parents, shifts):
-            X = np.array(table["X_object_tcp_candidate"][i], np.float64)
-            X[:3, 3] += X[:3, :3] @ d
-            rows.append(dict(evaluate_candidate(sim, X), rest_pose=np.int16(table["rest_pose"][i])))
+        sim = GraspSimulator(object_from_table(table, task.mesh_dirs), settings)
+        rows = [dict(evaluate_candidate(sim, shifted(table["X_object_tcp_candidate"][i], d, 1.0)),
+                     rest_pose=np.int16(table["rest_pose"][i])) for i, d in zip(parents, shifts)]
         arrays = stack_rows(rows)
         arrays.update(parent=parents.astype(np.int32), shift_tcp_m=shifts.astype(np.float32),
                       name=np.asarray(str(table["name"])), table_rows=np.asarray(len(table["grasped"])),
@@ -144,8 +142,8 @@ def load_labelling_table(objects_dir, name):
     for key in (k for k in ROW_KEYS if k in table):  # strings (reasons) keep the wider width of the two
         cast = extra[key] if table[key].dtype.kind == "U" else extra[key].astype(table[key].dtype)
         table[key] = np.concatenate([table[key], cast])
-    # finger joints: the same names in both (the same hand model)
-    if len(extra["finger_joint_angles"]) and list(extra["finger_joint_names"]) == list(table["finger_joint_names"]):
+    # finger joints: the same names in both (the same hand model); none in a file without rows
+    if list(extra["finger_joint_names"]) == list(table["finger_joint_names"]):
         table["finger_joint_angles"] = np.concatenate([table["finger_joint_angles"], extra["finger_joint_angles"]])
     else:
         pad = np.full((len(extra["grasped"]), table["finger_joint_angles"].shape[1]), np.nan, np.float32)
