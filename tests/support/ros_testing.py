@@ -171,14 +171,28 @@ def wait_for_subscriber(node, topic: str, timeout_s: float = 15.0) -> bool:
     return spin_until(node, lambda: node.count_subscribers(topic) > 0, timeout_s)
 
 
-def call_service(node, client, request, timeout_s: float = 15.0):
-    """Wait for the service, call it, spin until the response; raise on timeout."""
+def call_service(node, client, request, timeout_s: float = 15.0, resend_s: float | None = None):
+    """Wait for the service, call it, spin until the response; raise on timeout.
+
+    rmw_fastrtps drops a response when the server has not yet matched the client's reply
+    reader (it waits 100 ms; ros2/rmw_fastrtps#842), which can happen to a just-created
+    client on a loaded machine. So the call waits until this node sees the server's reply
+    writer, and `resend_s` (only for requests that are safe to repeat) sends the request
+    again after that long without an answer."""
     if not client.wait_for_service(timeout_sec=timeout_s):
         raise AssertionError(f"service {client.srv_name} not available within {timeout_s} s")
-    future = client.call_async(request)
-    if not spin_until(node, future.done, timeout_s):
-        raise AssertionError(f"service {client.srv_name} did not answer within {timeout_s} s")
-    return future.result()
+    reply_topic = f"rr{client.srv_name if client.srv_name.startswith('/') else '/' + client.srv_name}Reply"
+    spin_until(node, lambda: node.get_publishers_info_by_topic(reply_topic, no_mangle=True), min(timeout_s, 10.0))
+    deadline = time.monotonic() + timeout_s
+    futures = [client.call_async(request)]
+    while time.monotonic() < deadline:
+        step = deadline - time.monotonic() if resend_s is None else min(resend_s, deadline - time.monotonic())
+        if spin_until(node, lambda: any(f.done() for f in futures), step):
+            return next(f for f in futures if f.done()).result()
+        if resend_s is not None and time.monotonic() < deadline:
+            futures.append(client.call_async(request))
+    raise AssertionError(f"service {client.srv_name} did not answer within {timeout_s} s ({len(futures)} request(s) "
+                         "sent); a 'failed to send response' in the server's log means a lost reply (rmw_fastrtps#842)")
 
 
 class BackgroundSpin:
