@@ -9,8 +9,9 @@ Spearman's rank correlation, then validness precision / recall at the deployed t
 and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
 of a scene land under each ranking the model allows (`model_file.ranking`: score,
 expected_score and validness for a score model): on a labelled voxel (a grasp there held), on an explicit
-negative (a simulated failure or a colliding pose there), or on neither; last line
-`score_mae_n=<all modes>`.
+negative (a simulated failure or a colliding pose there), or on neither, and how many top-1
+picks landed on a label whose simulated f_g holds 0.1 / 0.5 / 1.5 / 2.5 / 4 kg (f_g >= m g:
+the benchmark's weights in label physics); last line `score_mae_n=<all modes>`.
 
 Which scenes: by default those the model's own training split held out (the seed and
 validation fraction stored in the model file; the split is by file name, so the same
@@ -79,29 +80,49 @@ def network_at_labels(model, scene_files, surface_distance_voxels=DetectionOptio
 
 
 TOP_K = (1, 5)
+# Object weights a pick is checked against (the benchmark's three, then heavier): a pick
+# "holds m kg" when the label at its voxel says f_g >= m g (paper Eq. 1's meaning).
+HOLDS_KG = (0.1, 0.5, 1.5, 2.5, 4.0)
+GRAVITY_MPS2 = 9.81
+
+
+def label_score_at(scene, grasp):
+    """f_g [N] of the label at the grasp's voxel whose rotation is closest to the grasp's
+    (pads swap: e_x up to sign), or None where the voxel holds no label."""
+    rows = np.flatnonzero((scene["index"] == np.asarray(grasp.voxel_index)).all(axis=1))
+    if not len(rows):
+        return None
+    e_x, e_z = grasp.pose[:3, 0], grasp.pose[:3, 2]
+    angle = (np.arccos(np.clip(np.abs(scene["e_x"][rows] @ e_x), 0.0, 1.0))
+             + np.arccos(np.clip(scene["e_z"][rows] @ e_z, -1.0, 1.0)))
+    return float(scene["score"][rows[np.argmin(angle)]])
 
 
 @torch.inference_mode()
 def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None):
-    """{ranking: {k: {label, negative, neither}}}: where detect's top-k grasps of each
-    scene land, with the deployed options. A voxel that is neither may hold a grasp
+    """{ranking: {k: {label, negative, neither, holds_kg: {kg: picks}}}}: where detect's
+    top-k grasps of each scene land, with the deployed options, and how many landed on a
+    label whose f_g holds each of HOLDS_KG. A voxel that is neither may hold a grasp
     nobody simulated: "label" is a lower bound on picks that hold, "negative" an upper
     bound on none of them."""
     if rankings is None:
         rankings = (["validness"] if model_file.training_target(metadata) == "binary"
                     else ["score", "expected_score", "validness"])
-    out = {r: {k: {"label": 0, "negative": 0, "neither": 0} for k in TOP_K} for r in rankings}
+    out = {r: {k: {"label": 0, "negative": 0, "neither": 0, "holds_kg": {str(m): 0 for m in HOLDS_KG}}
+               for k in TOP_K} for r in rankings}
     for path in scene_files:
         scene = load_scene(path)
-        labels = {tuple(v) for v in scene["index"].tolist()}
         negatives = {tuple(v) for v in scene["negative_index"].tolist()}
         for r in rankings:
             grasps = detect_grasps(model, scene["tsdf"], voxel_size_m,
                                    options=DetectionOptions(max_grasps=max(TOP_K), rank_by=r))
             for k in TOP_K:
                 for g in grasps[:k]:
-                    v = tuple(g.voxel_index)
-                    out[r][k]["label" if v in labels else "negative" if v in negatives else "neither"] += 1
+                    f_g = label_score_at(scene, g)
+                    where = "label" if f_g is not None else "negative" if tuple(g.voxel_index) in negatives else "neither"
+                    out[r][k][where] += 1
+                    for m in HOLDS_KG if f_g is not None else ():
+                        out[r][k]["holds_kg"][str(m)] += int(f_g >= m * GRAVITY_MPS2)
     return out
 
 
@@ -216,9 +237,11 @@ def main(argv=None):
           f"at {validness['threshold']:g}: precision={validness['precision']:.4f} recall={validness['recall']:.3f} "
           f"auroc={validness['auroc']:.4f}")
     for r, by_k in picks.items():
+        n = {k: max(c["label"] + c["negative"] + c["neither"], 1) for k, c in by_k.items()}
         print(f"{r} ranking: " + "; ".join(
-            f"top {k} on a label {c['label'] / max(sum(c.values()), 1):.2f}, on a negative "
-            f"{c['negative'] / max(sum(c.values()), 1):.2f} ({sum(c.values())} picks)" for k, c in by_k.items()))
+            f"top {k} on a label {c['label'] / n[k]:.2f}, on a negative {c['negative'] / n[k]:.2f} ({n[k]} picks)"
+            for k, c in by_k.items()) + "; top 1 on a label holding " + ", ".join(
+            f"{m} kg {held / n[1]:.2f}" for m, held in by_k[1]["holds_kg"].items()))
     print(f"score_mae_n={summary['all']['mae_n']:.2f}")
     return 0
 

@@ -135,11 +135,43 @@ def test_top_picks_are_told_apart_by_what_the_scene_knows_of_their_voxel(scenes,
     monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
         Grasp(np.eye(4), 1.0, 1.0, v) for v in order[options.rank_by]])
     picks = score_calibration.top_picks(None, {}, [edited], 0.0075)
-    assert picks["score"][1] == {"label": 0, "negative": 1, "neither": 0}
-    assert picks["expected_score"][1] == {"label": 1, "negative": 0, "neither": 0}
-    assert picks["score"][5] == picks["expected_score"][5] == {"label": 1, "negative": 1, "neither": 1}
+    where = lambda c: {w: c[w] for w in ("label", "negative", "neither")}  # noqa: E731
+    assert where(picks["score"][1]) == {"label": 0, "negative": 1, "neither": 0}
+    assert where(picks["expected_score"][1]) == {"label": 1, "negative": 0, "neither": 0}
+    assert where(picks["score"][5]) == where(picks["expected_score"][5]) == {"label": 1, "negative": 1, "neither": 1}
     # a binary model has one ranking, its validness
     monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
         Grasp(np.eye(4), 1.0, 1.0, label)] if options.rank_by == "validness" else [])
     assert list(score_calibration.top_picks(None, {"training_data": {"target": "binary"}}, [edited], 0.0075)) == \
         ["validness"]
+
+
+def test_a_pick_holds_the_weights_its_closest_label_holds(scenes, tmp_path, monkeypatch):
+    """Two labels at one voxel, 10 N and 30 N, turned 90 deg apart: a pick takes the f_g of
+    the one its rotation matches (pads swapped counts as the same), so it holds 0.1 and
+    0.5 kg but not 1.5 kg (14.7 N) on the first, and up to 2.5 kg (24.5 N) on the second."""
+    import numpy as np
+
+    from gravgrasp_detector.detection import Grasp
+    path = sorted(scenes.glob("*.npz"))[0]
+    z = dict(np.load(path))
+    voxel = np.asarray([[20, 20, 10]], z["label_index"].dtype)
+    z.update(label_index=np.repeat(voxel, 2, axis=0), label_score=np.asarray([10.0, 30.0], z["label_score"].dtype),
+             label_e_x=np.asarray([[1, 0, 0], [0, 1, 0]], z["label_e_x"].dtype),
+             label_e_z=np.asarray([[0, 0, -1], [0, 0, -1]], z["label_e_z"].dtype),
+             label_mode=np.zeros(2, z["label_mode"].dtype), negative_index=np.zeros((0, 3), np.uint8))
+    edited = tmp_path / path.name
+    np.savez(edited, **z)
+
+    def pick(e_x):
+        pose = np.eye(4)
+        pose[:3, 0], pose[:3, 2] = e_x, [0, 0, -1]
+        pose[:3, 1] = np.cross(pose[:3, 2], pose[:3, 0])
+        return Grasp(pose, 20.0, 0.9, (20, 20, 10))
+
+    for e_x, held in (([1, 0, 0], {"0.1": 1, "0.5": 1, "1.5": 0, "2.5": 0, "4.0": 0}),
+                      ([0, -1, 0], {"0.1": 1, "0.5": 1, "1.5": 1, "2.5": 1, "4.0": 0})):
+        monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options, e_x=e_x: [pick(e_x)])
+        picks = score_calibration.top_picks(None, {"training_data": {"target": "binary"}}, [edited], 0.0075)
+        assert picks["validness"][1]["label"] == 1 and picks["validness"][1]["holds_kg"] == held
+    assert score_calibration.label_score_at(training_scenes.load_scene(edited), Grasp(np.eye(4), 1.0, 1.0, (0, 0, 0))) is None
