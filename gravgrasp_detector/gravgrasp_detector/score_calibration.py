@@ -99,7 +99,8 @@ def label_score_at(scene, grasp):
 
 
 @torch.inference_mode()
-def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None):
+def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
+              validness_threshold=DetectionOptions().validness_threshold):
     """{ranking: {k: {label, negative, neither, holds_kg: {kg: picks}}}}: where detect's
     top-k grasps of each scene land, with the deployed options, and how many landed on a
     label whose f_g holds each of HOLDS_KG. A voxel that is neither may hold a grasp
@@ -115,7 +116,8 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None):
         negatives = {tuple(v) for v in scene["negative_index"].tolist()}
         for r in rankings:
             grasps = detect_grasps(model, scene["tsdf"], voxel_size_m,
-                                   options=DetectionOptions(max_grasps=max(TOP_K), rank_by=r))
+                                   options=DetectionOptions(max_grasps=max(TOP_K), rank_by=r,
+                                                           validness_threshold=validness_threshold))
             for k in TOP_K:
                 for g in grasps[:k]:
                     f_g = label_score_at(scene, g)
@@ -196,7 +198,12 @@ def main(argv=None):
     p.add_argument("--split", choices=("val", "all"), default="val",
                    help="'val': the scenes the model's training split held out (default); 'all': every scene")
     p.add_argument("--out", default="out/calibration")
+    p.add_argument("--validness-threshold", type=float, default=DetectionOptions().validness_threshold,
+                   help="least validness of a grasp, as detect's parameter: for precision/recall and the top picks")
     args = p.parse_args(argv)
+    if not 0.0 <= args.validness_threshold <= 1.0:
+        print(f"calibration: --validness-threshold {args.validness_threshold} is outside [0, 1]", file=sys.stderr)
+        return 2
     try:
         model, metadata = model_file.load_model(args.model)
     except model_file.ModelFileError as e:
@@ -221,8 +228,9 @@ def main(argv=None):
         print(f"calibration: the {len(files)} scenes hold no labels", file=sys.stderr)
         return 1
     summary = summarise(pairs)
-    validness = validness_summary(probability, labelled)
-    picks = top_picks(model, metadata, files, metadata["tsdf"]["voxel_size_m"])
+    validness = validness_summary(probability, labelled, args.validness_threshold)
+    picks = top_picks(model, metadata, files, metadata["tsdf"]["voxel_size_m"],
+                      validness_threshold=args.validness_threshold)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     title = f"{pathlib.Path(args.model).name} on {len(files)} {args.split} scenes of {args.data}"

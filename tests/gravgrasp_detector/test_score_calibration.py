@@ -116,6 +116,9 @@ def test_bad_inputs_are_one_line_each(scenes, tmp_path, capsys):
     assert score_calibration.main(["--model", str(model_path), "--data", str(tmp_path / "empty")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no scene files" in err[0]
+    assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--validness-threshold", "1.5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "outside [0, 1]" in err[0]
 
 
 def test_top_picks_are_told_apart_by_what_the_scene_knows_of_their_voxel(scenes, tmp_path, monkeypatch):
@@ -174,4 +177,9 @@ def test_a_pick_holds_the_weights_its_closest_label_holds(scenes, tmp_path, monk
         monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options, e_x=e_x: [pick(e_x)])
         picks = score_calibration.top_picks(None, {"training_data": {"target": "binary"}}, [edited], 0.0075)
         assert picks["validness"][1]["label"] == 1 and picks["validness"][1]["holds_kg"] == held
+    seen = []
+    monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: seen.append(
+        options.validness_threshold) or [])
+    score_calibration.top_picks(None, {}, [edited], 0.0075, validness_threshold=0.9)
+    assert seen == [0.9] * 3  # each ranking detects with the threshold asked for
     assert score_calibration.label_score_at(training_scenes.load_scene(edited), Grasp(np.eye(4), 1.0, 1.0, (0, 0, 0))) is None
