@@ -181,7 +181,7 @@ def call_service(node, client, request, timeout_s: float = 15.0, resend_s: float
     again after that long without an answer."""
     if not client.wait_for_service(timeout_sec=timeout_s):
         raise AssertionError(f"service {client.srv_name} not available within {timeout_s} s")
-    reply_topic = f"rr{client.srv_name if client.srv_name.startswith('/') else '/' + client.srv_name}Reply"
+    reply_topic = f"rr{client.service_name}Reply"  # the DDS topic of the replies (resolved name)
     spin_until(node, lambda: node.get_publishers_info_by_topic(reply_topic, no_mangle=True), min(timeout_s, 10.0))
     deadline = time.monotonic() + timeout_s
     futures = [client.call_async(request)]
