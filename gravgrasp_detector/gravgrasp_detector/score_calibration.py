@@ -37,7 +37,7 @@ from .atomic_files import save_figure, save_json
 from .training_config import TrainConfig
 from .detection import DetectionOptions, detect_grasps, near_surface_mask
 from .training_losses import auroc
-from .training_scenes import DataError, load_scene, split_scenes
+from .training_scenes import G_MPS2, DataError, load_scene, split_scenes
 
 
 @torch.no_grad()
@@ -83,7 +83,6 @@ TOP_K = (1, 5)
 # Object weights a pick is checked against (the benchmark's three, then heavier): a pick
 # "holds m kg" when the label at its voxel says f_g >= m g (paper Eq. 1's meaning).
 HOLDS_KG = (0.1, 0.5, 1.5, 2.5, 4.0)
-GRAVITY_MPS2 = 9.81
 
 
 def label_score_at(scene, grasp):
@@ -124,7 +123,7 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
                     where = "label" if f_g is not None else "negative" if tuple(g.voxel_index) in negatives else "neither"
                     out[r][k][where] += 1
                     for m in HOLDS_KG if f_g is not None else ():
-                        out[r][k]["holds_kg"][str(m)] += int(f_g >= m * GRAVITY_MPS2)
+                        out[r][k]["holds_kg"][str(m)] += int(f_g >= m * G_MPS2)
     return out
 
 
