@@ -22,10 +22,8 @@
 #    each alone on the 2-core EPYC; copy them to models/ with their cards by hand, and commit
 #    them: a retrained model has another sha256, and the benchmark redoes every round of a
 #    model it has not seen);
-# 5. the held-out benchmark (sim_bridge/results/heldout_v4; commit its rounds as they come):
-#    Ours, Binary and Ours ranked by validness x score (ours_expected) first, as issue 16's
-#    targets are about these three, then the ablations; then all six methods on unseen
-#    procedural objects (sim_bridge/results/procedural_v4).
+# 5. the benchmark of the shipped models: ros_ws/benchmark_chain.sh v4 (its own line per
+#    session, as it runs for days; it needs the models copied to models/ first).
 set -euo pipefail
 export PYTHONUNBUFFERED=1  # the log shows each epoch when it ends, not in 4 KiB bursts
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
@@ -62,33 +60,5 @@ train_variants() {  # train_variants VARIANT...: those of `variants`, in that or
   for v in "${variants[@]}"; do IFS=: read -r variant file option <<< "$v"
     [[ " $* " == *" $variant "* ]] && train "$variant" "$file" $option; done; return 0
 }
-model_args() {  # model_args METHODS: --model METHOD=PATH for those of METHODS (comma-separated) that
-  # have a model: models/ once shipped (a lost out/ cannot change their sha256); the benchmark
-  # runs every method it is given a --model for, so only those of METHODS
-  models=()
-  for pair in ours:ours binary:binary ours_precision:precision_only ours_ey_ez:ey_ez ours_quat:quat; do
-    method="${pair%%:*}"; variant="${pair#*:}"
-    [[ ",$1," == *",$method,"* ]] || continue
-    for v in "${variants[@]}"; do [ "${v%%:*}" = "$variant" ] && { file="${v#*:}"; file="${file%%:*}"; }; done
-    if shipped "$variant" "$file"; then models+=(--model "$method=models/$file")
-    elif [ -f "out/training_v4/$variant/model.pt" ]; then models+=(--model "$method=out/training_v4/$variant/model.pt"); fi
-  done
-}
-bench_size=(--scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5)  # the Makefile's BENCH_SIZE
-heldout() {  # heldout METHODS: their rounds on the held-out meshes (done rounds are kept)
-  model_args "$1"
-  echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes: $1 (${models[*]})"
-  python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
-    --out sim_bridge/results/heldout_v4 --workers "$workers" --no-progress "${bench_size[@]}" --methods "$1" "${models[@]}" \
-    || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
-}
-all_methods=ours,binary,ours_precision,ours_ey_ez,ours_quat,ours_expected  # ours_expected: Ours' model by validness x score
-
 train_variants ours binary precision_only ey_ez quat
-heldout ours,binary,ours_expected
-heldout "$all_methods"
-model_args "$all_methods"
-echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
-python -m sim_bridge.benchmark.clutter_benchmark --out sim_bridge/results/procedural_v4 --workers "$workers" \
-  --no-progress "${bench_size[@]}" --methods "$all_methods" "${models[@]}"
-echo "[chain] $(date -u +%FT%TZ) done"
+echo "[chain] $(date -u +%FT%TZ) done: copy the models to models/, then ros_ws/benchmark_chain.sh v4"
