@@ -121,10 +121,14 @@ class Fingers:
             self._stall_since_s = None
         t = self._time_s()
         # Stopped = stalled while the motor pushes with its full torque towards the
-        # target. Right after a reversal (open after a squeeze) the fingers stall too,
-        # until the servo reference has come back past them: that is no stop.
+        # target, or with its reference already at the target: the servo's torque is
+        # then KP x what is left (the pads meeting 0.02 rad short of closed give 2.1 Nm,
+        # under 90 % of the limit from ~46 N of grip force), and nothing will change.
+        # Right after a reversal (open after a squeeze) the fingers stall too, until the
+        # servo reference has come back past them: that is no stop.
         stopped = (self._stall_since_s is not None and t - self._stall_since_s >= self.STALL_HOLD_S
-                   and t - cmd.t_start_s >= self.START_GRACE_S and self._pushing(target_angle))
+                   and t - cmd.t_start_s >= self.START_GRACE_S
+                   and (self._pushing(target_angle) or self._reference_done()))
         close_enough = abs(self.driver_angle_rad() - target_angle) < 0.01
         if close_enough and (stopped or t - cmd.t_start_s >= self.START_GRACE_S):
             return cmd.target_width_m, "at_target"
@@ -146,6 +150,12 @@ class Fingers:
         q = self.driver_angle_rad()
         tau = FingerServoSystem.KP_NM_PER_RAD * (self._model.finger_servo.reference(ctx) - q)
         return tau * (target_angle - q) > 0 and abs(tau) >= 0.9 * limit
+
+    def _reference_done(self) -> bool:
+        """The servo reference has run all the way to its target."""
+        ctx = self._servo_context()
+        target, _, _ = self._model.finger_servo.command(ctx)
+        return abs(self._model.finger_servo.reference(ctx) - target) <= 1e-9
 
     def busy(self) -> bool:
         """True while the fingers move or the servo is still building up its grip."""
