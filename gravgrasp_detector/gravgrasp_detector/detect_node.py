@@ -117,6 +117,9 @@ class DetectNode(Node):
             "gravity-rejection score, the paper's rule; a binary model by validness), 'score', "
             "'expected_score' (validness x score), or 'validness'", read_only=True)).value
         p("pregrasp_distance_m", 0.05, float_range("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
+        p("clear_hand", False, described(
+            "Publish only grasps whose open hand, swept from the pre-grasp, clears the observed scene (the "
+            "executor's check), letting a refused grasp's neighbours through NMS; off: the paper's selection"))
         threads = p("torch_threads", 1, int_range(
             "Intra-op threads of the network. 1 by default: on a small CPU shared with the tsdf "
             "node, OpenMP threads waiting on a busy core made detection up to 10x slower", 1, 64,
@@ -191,6 +194,8 @@ class DetectNode(Node):
             nms_radius_voxels=param("nms_radius_voxels"),
             precision=self.precision,
             rank_by=self.rank_by,
+            clear_hand=param("clear_hand"),
+            pregrasp_distance_m=param("pregrasp_distance_m"),
         )
         grasps = detection.detect_grasps(self.model, grid, msg.voxel_size_m, T_task_grid, options)
         self.problems.clear()

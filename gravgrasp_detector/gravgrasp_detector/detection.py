@@ -19,6 +19,12 @@ numpy until the final few grasps):
    `max_grasps`.  Validness is over-confident next to objects and in unobserved space
    (a real D435 frame gave grasps 6 cm from any observed surface); this is the cheap
    geometric veto the paper's learned validness should make unnecessary.
+6. (`clear_hand`, off by default: the paper has no such step) the open hand, swept
+   from the pre-grasp along the approach, clears the observed scene: the executor's own
+   check (hand_clearance). A grasp that fails it is taken out of the candidates and
+   steps 3-5 run again, so that NMS no longer lets it hide the neighbours the hand can
+   reach (a grasp one voxel too deep in a glass suppressed 173 clear ones around it, and
+   the executor refused the only grasp published).
 With precision bf16 only the backbone runs in bf16 (autocast); the score/validness
 head runs in float32 on its output, so bf16 rounding of the outputs (8 mantissa
 bits: 0.125 N at 30 N) does not decide near-ties.
@@ -32,7 +38,7 @@ import torch
 
 from robotiq_driver.hand_geometry import FINGER_TIP_Z_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_FACE_Z_M
 
-from . import rotation
+from . import hand_clearance, rotation
 from .tsdf import InputError
 
 # Where an object must be for the closing fingers to meet it (TCP frame, metres).
@@ -63,6 +69,8 @@ class DetectionOptions:
     # high score, which the score head was never trained at, no longer outranks a sure
     # one); `model_file.ranking(metadata)` says which a model needs
     rank_by: str = "score"
+    clear_hand: bool = False  # step 6
+    pregrasp_distance_m: float = 0.05  # where step 6's approach starts (the executor's)
 
     def __post_init__(self):
         if self.precision not in PRECISIONS:
@@ -258,17 +266,45 @@ def select_grasps(
     grid, score_n, validness, rank_key: (R, R, R) tensors; rotation_channels_at: callable
     (N, 3) long voxel indices -> (N, C) rotation channels.
     """
-    max_grasps = int(options.max_grasps)
     grid = torch.as_tensor(grid)
     score_n = torch.as_tensor(score_n).float()
     validness = torch.as_tensor(validness).float()
     candidate = near_surface_mask(grid, options.surface_distance_voxels) & (validness >= options.validness_threshold)
     candidate &= (score_n >= options.min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
     key = score_n if rank_key is None else torch.as_tensor(rank_key).float()
+
+    def poses_at(index):  # (N, 3) voxel indices -> (N, 4, 4) grasps in the grid's frame
+        poses = np.zeros((len(index), 4, 4))
+        R = rotation.reconstruct(rotation_representation, rotation_channels_at(index).float())
+        poses[:, :3, :3] = R.double().numpy()
+        poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
+        poses[:, 3, 3] = 1.0
+        return poses
+
+    def ranked(candidate):  # steps 3-5
+        return _ranked_poses(grid, candidate, key, score_n, validness, poses_at, voxel_size_m, options)
+    grasps = ranked(candidate)
+    if options.clear_hand:
+        grasps = _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options)
+    index, scores, valid, poses = grasps
+    if len(index) == 0:
+        return []
+    poses = _to_transform(origin) @ poses
+    return [
+        Grasp(pose=pose, score_n=score, validness=v, voxel_index=tuple(ijk))
+        for pose, score, v, ijk in zip(poses, scores.tolist(), valid.tolist(), index.tolist())
+    ]
+
+
+def _ranked_poses(grid, candidate, key, score_n, validness, poses_at, voxel_size_m, options):
+    """Steps 3-5 on the candidate voxels: (index (N, 3), scores (N,), validness (N,),
+    poses (N, 4, 4) in the grid's frame), best first, N <= max_grasps. `poses_at`:
+    (N, 3) voxel indices -> (N, 4, 4) grasp poses."""
+    max_grasps = int(options.max_grasps)
     masked = torch.where(candidate, key, torch.full_like(key, -1.0))
     r = int(options.nms_radius_voxels)
     if r > 0:
-        candidate &= masked == cube_max(masked, r)
+        candidate = candidate & (masked == cube_max(masked, r))
     index = candidate.nonzero()
     scores = score_n[candidate]
     # rotations for a few more than max_grasps: step 5 may veto some
@@ -277,13 +313,8 @@ def select_grasps(
     index, scores = index[order], scores[order]
     valid = validness[tuple(index.T)]
     if len(index) == 0:
-        return []
-    R = rotation.reconstruct(rotation_representation, rotation_channels_at(index).float())
-
-    poses = np.zeros((len(index), 4, 4))
-    poses[:, :3, :3] = R.double().numpy()
-    poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
-    poses[:, 3, 3] = 1.0
+        return index, scores, valid, np.zeros((0, 4, 4))
+    poses = poses_at(index)
     keep = np.arange(len(index))
     if options.min_surface_voxels > 0:
         # best first, a chunk at a time: usually the first chunk fills max_grasps
@@ -294,10 +325,44 @@ def select_grasps(
             if len(kept) >= n:
                 break
         keep = np.asarray(kept, int)
-    keep = keep[:max_grasps]
-    poses = _to_transform(origin) @ poses[keep]
-    scores, valid, index = scores[keep], valid[keep], index[keep]
-    return [
-        Grasp(pose=pose, score_n=score, validness=v, voxel_index=tuple(ijk))
-        for pose, score, v, ijk in zip(poses, scores.tolist(), valid.tolist(), index.tolist())
-    ]
+    keep = torch.as_tensor(keep[:max_grasps], dtype=torch.long)
+    return index[keep], scores[keep], valid[keep], poses[keep.numpy()]
+
+
+CLEAR_HAND_ROUNDS = 8  # step 6's reruns of steps 3-5; what still collides after them is dropped
+
+
+def _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options):
+    """Step 6: take grasps whose open hand meets the observed scene out of `candidate` and
+    rank again (`ranked`: candidate mask -> steps 3-5), until the grasps kept clear it.
+    A grasp that collides is checked with the candidates of its NMS neighbourhood (those it
+    suppressed) at once: its neighbours one voxel deeper mostly collide too."""
+    points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m)  # the grid's frame, as the poses
+    candidate = candidate.clone()
+    clear = torch.zeros_like(candidate)
+    checked = torch.zeros_like(candidate)
+
+    def check(index, poses):
+        hit = hand_clearance.hands_collide(poses, points, voxel_size_m, options.pregrasp_distance_m)
+        clear[tuple(index.T)] = torch.as_tensor(~hit)
+        checked[tuple(index.T)] = True
+
+    r = max(int(options.nms_radius_voxels), 0)
+    for _ in range(CLEAR_HAND_ROUNDS):
+        index, _, _, poses = grasps
+        new = ~checked[tuple(index.T)]
+        check(index[new], poses[new.numpy()])
+        blocked = index[~clear[tuple(index.T)]]
+        if len(blocked) == 0:
+            return grasps
+        near = torch.zeros_like(candidate)
+        for i, j, k in blocked.tolist():
+            near[max(i - r, 0):i + r + 1, max(j - r, 0):j + r + 1, max(k - r, 0):k + r + 1] = True
+        near_index = (near & candidate & ~checked).nonzero()
+        if len(near_index):
+            check(near_index, poses_at(near_index))
+        candidate &= ~checked | clear
+        grasps = ranked(candidate)
+    index, scores, valid, poses = grasps
+    keep = (checked & clear)[tuple(index.T)]
+    return index[keep], scores[keep], valid[keep], poses[keep.numpy()]

@@ -43,7 +43,11 @@ def first_collision(poses: dict, tsdf) -> str:
     """'' if the hand is clear at pre-grasp, along the approach and at the grasp;
     otherwise a sentence saying where it collides. `tsdf`: (grid, voxel_size_m, origin)."""
     grid, voxel_size_m, origin = tsdf
-    points = occupied_points(grid, voxel_size_m, origin)
+    return collision_with_points(poses, occupied_points(grid, voxel_size_m, origin), voxel_size_m)
+
+
+def collision_with_points(poses: dict, points: np.ndarray, voxel_size_m: float) -> str:
+    """first_collision against occupied voxel centres already found (many grasps, one grid)."""
     # Shrink boxes by half a voxel: a voxel centre half a voxel inside a box may be free.
     margin = 0.5 * voxel_size_m
     approach_m = float(np.linalg.norm(poses["grasp"][:3, 3] - poses["pregrasp"][:3, 3]))
@@ -56,6 +60,27 @@ def first_collision(poses: dict, tsdf) -> str:
             return (f"the open hand collides with the scene at the {name} (occupied TSDF voxels "
                     f"inside the {where}): pick another grasp")
     return ""
+
+
+def hands_collide(poses_tcp: np.ndarray, points: np.ndarray, voxel_size_m: float, approach_m: float) -> np.ndarray:
+    """(N,) bool: whether the open hand, swept `approach_m` back along its approach from
+    each grasp pose (N, 4, 4), contains any of the occupied voxel centres `points` (M, 3):
+    first_collision's verdict for many grasps at once (the swept boxes contain the
+    pre-grasp's)."""
+    poses_tcp = np.asarray(poses_tcp, float).reshape(-1, 4, 4)
+    if len(points) == 0 or len(poses_tcp) == 0:
+        return np.zeros(len(poses_tcp), bool)
+    boxes = swept_boxes(approach_m)
+    margin = 0.5 * voxel_size_m
+    lo, hi = boxes[:, 0] + margin, boxes[:, 1] - margin  # (parts, 3)
+    outer_lo, outer_hi = lo.min(axis=0), hi.max(axis=0)  # the box around every part
+    hit = np.zeros(len(poses_tcp), bool)
+    for n, X in enumerate(poses_tcp):
+        p = (points - X[:3, 3]) @ X[:3, :3]
+        p = p[(p[:, 0] > outer_lo[0]) & (p[:, 0] < outer_hi[0]) & (p[:, 1] > outer_lo[1]) & (p[:, 1] < outer_hi[1])
+              & (p[:, 2] > outer_lo[2]) & (p[:, 2] < outer_hi[2])]
+        hit[n] = bool(len(p)) and bool(np.any(np.all((p[:, None] > lo) & (p[:, None] < hi), axis=2)))
+    return hit
 
 
 def closed_tips_estimate(X_grasps, tsdf, table_z_m: float):

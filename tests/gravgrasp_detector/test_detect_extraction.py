@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy import ndimage
 
-from gravgrasp_detector import detection, networks, rotation
+from gravgrasp_detector import detection, grasp_execution, hand_clearance, networks, rotation
 from gravgrasp_detector.tsdf import InputError
 
 VS = 0.0075
@@ -294,3 +294,55 @@ def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one
     grasps = detection.detect_grasps(net, table_grid().numpy(), VS, options=opts)
     keys = [g.validness * g.score_n for g in grasps]
     assert grasps and keys == sorted(keys, reverse=True)
+
+
+def test_clear_hand_publishes_the_neighbour_the_open_hand_can_reach():
+    # A lid 6 cm above the table top: the housing of a top-down grasp at k=8 meets it,
+    # one voxel higher it clears it. By the paper's steps the deeper grasp (9 N) suppresses
+    # its neighbour (8.5 N) in NMS and is the only one published, which the executor then
+    # refuses; step 6 (clear_hand) publishes the neighbour instead.
+    grid = table_grid().clone()
+    grid[14:27, 14:27, 16] = 0.3
+    score, validness = torch.zeros(R, R, R), torch.ones(R, R, R)
+    score[20, 20, 8], score[20, 20, 9] = 9.0, 8.5
+
+    def run(grid, **options):
+        options = detection.DetectionOptions(min_surface_voxels=0, **options)
+        return detection.select_grasps(grid, score, validness, top_down_channels, "ex-ez", VS, (0.1, 0.0, 0.0), options)
+
+    assert [g.voxel_index for g in run(grid)] == [(20, 20, 8)]
+    (clear,) = run(grid, clear_hand=True)
+    assert clear.voxel_index == (20, 20, 9) and clear.score_n == 8.5
+    # the executor's own check agrees (task frame: the grid's origin at x = 0.1 m)
+    tsdf = (grid.numpy(), VS, np.array([0.1, 0.0, 0.0]))
+    assert not hand_clearance.first_collision(grasp_execution.plan_poses(clear.pose, 0.05, 0.1), tsdf)
+    X_deep = grasp_execution.plan_poses(run(grid)[0].pose, 0.05, 0.1)
+    assert "housing" in hand_clearance.first_collision(X_deep, tsdf)
+    # a lid one voxel higher blocks both: nothing is published rather than a grasp the hand cannot reach
+    low = table_grid().clone()
+    low[14:27, 14:27, 17] = 0.3
+    assert run(low, clear_hand=True) == []
+
+
+def test_hands_collide_agrees_with_the_executors_check():
+    # step 6 decides with hands_collide, the executor with first_collision: on a table with
+    # a box, random grasps near it must get the same verdict from both
+    grid = table_grid().numpy().copy()
+    grid[16:24, 16:24, 7:15] = 0.3  # a 6 cm box on the table
+    tsdf = (grid, VS, np.zeros(3))
+    points = hand_clearance.occupied_points(grid, VS)
+    rng = np.random.default_rng(0)
+    poses = []
+    for _ in range(300):
+        axis = rng.normal(size=3)
+        angle = rng.uniform(0, 0.8)
+        K = np.cross(np.eye(3), axis / np.linalg.norm(axis))
+        R_tilt = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+        X = np.eye(4)
+        X[:3, :3] = R_tilt @ np.diag([1.0, -1.0, -1.0])
+        X[:3, 3] = rng.uniform([0.09, 0.09, 0.05], [0.2, 0.2, 0.15])
+        poses.append(X)
+    hit = hand_clearance.hands_collide(np.array(poses), points, VS, 0.05)
+    expected = [bool(hand_clearance.first_collision(grasp_execution.plan_poses(X, 0.05, 0.1), tsdf)) for X in poses]
+    assert hit.tolist() == expected
+    assert 30 < hit.sum() < 270  # both verdicts occur

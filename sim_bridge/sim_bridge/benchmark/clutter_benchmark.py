@@ -95,6 +95,9 @@ def main(argv=None) -> int:
     p.add_argument("--validness-threshold", type=float, default=Protocol.validness_threshold)
     p.add_argument("--min-score-n", type=float, default=Protocol.min_score_n,
                    help="ignore grasps scored below this [N] (not applied to binary models)")
+    p.add_argument("--clear-hand", action="store_true",
+                   help="detection's step 6: only grasps whose open hand clears the observed scene "
+                        "(the detect node's clear_hand); default: the paper's selection")
     p.add_argument("--hold-s", type=float, default=Protocol.hold_s)
     p.add_argument("--shake-m", type=float, default=Protocol.shake_m, help="0 = no shake")
     p.add_argument("--time-step-s", type=float, default=Protocol.time_step_s)
@@ -143,7 +146,7 @@ def main(argv=None) -> int:
         return 2
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
                         hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
-                        relaxation_time_s=args.relaxation_time_s)
+                        relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand)
     out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
     t0 = time.monotonic()
     try:

@@ -62,6 +62,9 @@ class Protocol:
     relaxation_time_s: float | None = None
     grip_force_n: float = 40.0     # the paper's
     attempts_per_object: int = ATTEMPTS_PER_OBJECT
+    # detection's step 6 (gravgrasp_detector.detection): off, the paper's selection. Kept
+    # out of config.json while off, so runs from before it existed stay resumable.
+    clear_hand: bool = False
 
 
 # objects and scenes

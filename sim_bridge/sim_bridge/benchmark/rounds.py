@@ -35,7 +35,8 @@ def make_detector(model, metadata, protocol: Protocol, rank_by=None):
     with min_score_n; binary methods rank by validness (their success probability), as the
     detect node serves them; `rank_by` overrides that (RANKING_VARIANTS)."""
     options = DetectionOptions(validness_threshold=protocol.validness_threshold, min_score_n=protocol.min_score_n,
-                               max_grasps=protocol.max_grasps, rank_by=rank_by or ranking(metadata))
+                               max_grasps=protocol.max_grasps, rank_by=rank_by or ranking(metadata),
+                               clear_hand=protocol.clear_hand)
 
     def detect(tsdf):
         grid, voxel_size_m, origin = tsdf
@@ -130,6 +131,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     config = {"seed": seed, "meshes": str(pathlib.Path(meshes_dir).resolve()) if meshes_dir else None,
               "procedural_seed": None if meshes_dir else PROCEDURAL_SEED, "objects_per_scene": OBJECTS_PER_SCENE,
               "protocol": dataclasses.asdict(protocol)}
+    if not protocol.clear_hand:  # older runs' config.json has no such key: they stay resumable
+        del config["protocol"]["clear_hand"]
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
     config_path = out / "config.json"
