@@ -43,11 +43,7 @@ def first_collision(poses: dict, tsdf) -> str:
     """'' if the hand is clear at pre-grasp, along the approach and at the grasp;
     otherwise a sentence saying where it collides. `tsdf`: (grid, voxel_size_m, origin)."""
     grid, voxel_size_m, origin = tsdf
-    return collision_with_points(poses, occupied_points(grid, voxel_size_m, origin), voxel_size_m)
-
-
-def collision_with_points(poses: dict, points: np.ndarray, voxel_size_m: float) -> str:
-    """first_collision against occupied voxel centres already found (many grasps, one grid)."""
+    points = occupied_points(grid, voxel_size_m, origin)
     # Shrink boxes by half a voxel: a voxel centre half a voxel inside a box may be free.
     margin = 0.5 * voxel_size_m
     approach_m = float(np.linalg.norm(poses["grasp"][:3, 3] - poses["pregrasp"][:3, 3]))
@@ -71,15 +67,14 @@ def hands_collide(poses_tcp: np.ndarray, points: np.ndarray, voxel_size_m: float
     if len(points) == 0 or len(poses_tcp) == 0:
         return np.zeros(len(poses_tcp), bool)
     boxes = swept_boxes(approach_m)
-    margin = 0.5 * voxel_size_m
-    lo, hi = boxes[:, 0] + margin, boxes[:, 1] - margin  # (parts, 3)
-    outer_lo, outer_hi = lo.min(axis=0), hi.max(axis=0)  # the box around every part
+    margin = 0.5 * voxel_size_m  # as first_collision
+    outer_lo, outer_hi = boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)  # the box around every part
     hit = np.zeros(len(poses_tcp), bool)
     for n, X in enumerate(poses_tcp):
+        # only the points in the box around the whole hand go to the per-part test
         p = (points - X[:3, 3]) @ X[:3, :3]
-        p = p[(p[:, 0] > outer_lo[0]) & (p[:, 0] < outer_hi[0]) & (p[:, 1] > outer_lo[1]) & (p[:, 1] < outer_hi[1])
-              & (p[:, 2] > outer_lo[2]) & (p[:, 2] < outer_hi[2])]
-        hit[n] = bool(len(p)) and bool(np.any(np.all((p[:, None] > lo) & (p[:, None] < hi), axis=2)))
+        near = points[np.all((p > outer_lo) & (p < outer_hi), axis=1)]
+        hit[n] = bool(points_in_hand(X, near, boxes, margin))
     return hit
 
 
