@@ -13,7 +13,7 @@ import pytest
 
 from gravgrasp_detector import grasp_execution as ge
 from gravgrasp_detector.arm_reachability import ArmReachability
-from robotiq_driver.emulator.emulated_gripper import GripperEmulator, KinematicFingers
+from robotiq_driver.emulator.emulated_gripper import FingerReading, GripperEmulator, KinematicFingers
 from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from robotiq_driver.gripper_client import Robotiq2F85
 
@@ -445,6 +445,45 @@ def test_gripper_silent_during_the_close_is_a_fault_then_recovers(gripper_port):
     assert time.monotonic() - t0 < ex.limits.gripper_timeout_s + 2.0
     assert not ex.armed and ex.gripper is None
     gripper_port.respond = True
+    arm.move_to = original
+    ex.arm_motion(True)
+    assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS
+
+
+class FreezableFingers(ObjectAtGrasp):
+    """ObjectAtGrasp whose fingers can jam: while `frozen` they neither move nor stall,
+    so the gripper keeps reporting "moving" (gOBJ 0), as a 2F-85 whose fingers are
+    caught on something can."""
+
+    frozen = False
+
+    def advance(self, dt_s, width_m, target_width_m, speed_mps, force_n):
+        if self.frozen and target_width_m != width_m:
+            return FingerReading(width_m, False, self.moving_current_a)
+        return super().advance(dt_s, width_m, target_width_m, speed_mps, force_n)
+
+
+@pytest.mark.parametrize("fingers", [FreezableFingers(0.05)])
+def test_a_close_that_never_finishes_is_a_timeout_that_leaves_the_hand_where_it_is(gripper_port, fingers):
+    """TIMEOUT disarms without backing out: the fingers' state is unknown (they may be
+    caught on the object), so no motion follows until a person has looked and re-armed."""
+    ex, arm = make_executor(gripper_port, gripper_timeout_s=1.5)
+    original = arm.move_to
+
+    def jam_at_grasp(X, speed, timeout):
+        result = original(X, speed, timeout)
+        fingers.frozen = is_grasp(X)
+        return result
+
+    arm.move_to = jam_at_grasp
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.TIMEOUT and "closing did not finish" in outcome.message, outcome.message
+    assert not ex.armed
+    assert is_grasp(arm.targets[-1][0])  # no back out, no lift: the hand stayed at the grasp
+    moves = len(arm.targets)
+    assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
+    assert len(arm.targets) == moves
+    fingers.frozen = False
     arm.move_to = original
     ex.arm_motion(True)
     assert ex.execute(grasp()).code == ge.ResultCode.SUCCESS
