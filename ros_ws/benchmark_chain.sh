@@ -6,10 +6,10 @@
 # procedural_<VERSION> (commit their rounds as they come). A round records its model's
 # sha256 and is redone for another model, so ship the models before starting.
 # Order: Ours, Binary and Ours ranked by validness x score (ours_expected) on the 48 held-out
-# meshes first (issue 16's targets are about these), then the rotation ablations and
-# Ours-Precision (at the ablation weight only), then Ours and Binary at 4 kg, then all six
-# methods on unseen procedural objects. ~3-4 min a round on 2 workers: 144 + 48 + 32
-# held-out rounds, ~13 h, before the procedural ones.
+# meshes first (issue 16's targets are about these), then the rotation ablations (at the
+# ablation weight only) and Ours-Precision (at every weight), then Ours and Binary at 4 kg,
+# then all six methods on unseen procedural objects. ~2.5-4 min a round on 2 workers:
+# 144 + 80 + 32 held-out rounds, ~11-17 h, before the procedural ones.
 set -euo pipefail
 export PYTHONUNBUFFERED=1
 [ $# -eq 1 ] || { echo "usage: ros_ws/benchmark_chain.sh VERSION (e.g. v5)" >&2; exit 2; }
