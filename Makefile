@@ -19,7 +19,7 @@ help:
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
-	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (~8 h; nohup; resumable)"
+	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
 	@echo "make data-tables-v3 / data-scenes-v4 - v2 tables grown to 320 candidates; the v3 scenes relabelled with them"
@@ -88,8 +88,9 @@ benchmark-quick: setup
 
 # Benchmark v2 (issue 16): 16 scenes x 0.1/0.5/1.5 kg on two object sets the models never
 # trained on, the 48 held-out VGN meshes and unseen procedural objects (procedural seed
-# 1000); ~8 h on 2 cores, resumable. v1's README run was --scenes 8 into out/benchmark.
-# The paper's weights: BENCH_SIZE='--scenes 16'.
+# 1000); 176 rounds per object set (Ours, Binary and Ours-Precision at each weight, the two
+# rotation ablations at 0.5 kg; ros_ws/benchmark_chain.sh adds ours_expected: 224), ~2.3 min
+# a round on 2 cores (v4): ~14 h in all, resumable. v1's README run was --scenes 8 into out/benchmark.
 BENCH_SIZE ?= --scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5
 .PHONY: benchmark-heldout benchmark-procedural
 benchmark: benchmark-heldout benchmark-procedural
