@@ -2,8 +2,11 @@
 
 Replays depth at 30 Hz into the `tsdf` and `detect` nodes (each its own process, as
 deployed) for `--duration-s` (10 min by default), and, unless `--no-execute`, runs the
-Drake sim bridge and the `execute` node beside them and asks `/execute_grasp` for the
-top grasp every `--execute-every-s`, reloading the sim's scene after each attempt.
+Drake sim bridge and the `execute` node beside them and, every `--execute-every-s`, asks
+`/execute_grasp` for the best-ranked grasp of the latest /grasps that the executor accepts
+(as the demo does: one it refuses before moving, hand in collision or unreachable, sends the
+next), reloading the sim's scene after each attempt. So the arm and the gripper run in every
+attempt, not only the checks.
 
 The depth frames are the sim camera's view of the same scene the sim bridge holds
 (rendered once here, seed `--seed`), restamped with the current time at every publish,
@@ -16,7 +19,8 @@ Reports (one `name=value` per line, the last `soak_ok=0|1`):
   detect superseded (a newer one arrived while the network ran), /grasps received;
 - latency from the image stamp of the newest fused frame to the /grasps message
   arriving here, p50 and p95 (goal: p95 <= 25 ms on this machine);
-- /execute_grasp results by code.
+- /execute_grasp results by code (the attempt's final answer), and how many grasps the
+  executor refused before moving on the way to them.
 soak_ok = every node alive at the end, RSS growth < 5 % for each, /grasps kept coming
 (>= 1 per 2 s on average), and no /execute_grasp call left unanswered. The latency goal
 is reported (`latency_goal_met`) but not part of soak_ok: on a machine shared with other
@@ -46,6 +50,7 @@ from gravgrasp_msgs.msg import GraspArray
 from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
 
 from ..world import SceneConfig, SimWorld, WorldSettings
+from .clutter_demo import REFUSED_BEFORE_MOTION
 from .processes import Processes, installed
 
 RSS_GROWTH_LIMIT = 0.05
@@ -106,6 +111,7 @@ class Replay:
         self.published = 0
         self.latencies_ms = []
         self.grasps_received = 0
+        self.latest_grasps = None
         self._lock = threading.Lock()
         self.node.create_subscription(GraspArray, "grasps", self._on_grasps, 10)
         self.executor = MultiThreadedExecutor(num_threads=3)
@@ -119,6 +125,7 @@ class Replay:
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         with self._lock:
             self.grasps_received += 1
+            self.latest_grasps = msg
             if self.record:
                 self.latencies_ms.append((now - stamp) / 1e6)
 
@@ -148,6 +155,27 @@ class Replay:
         return future.result() if done.wait(timeout_s) else None
 
 
+def result_name(response) -> str:
+    return next((n for n in dir(ExecuteGrasp.Response)
+                 if n.isupper() and getattr(ExecuteGrasp.Response, n) == response.result_code),
+                str(response.result_code))
+
+
+def execute_best_accepted(replay, timeout_s=240):
+    """/execute_grasp on the grasps of the latest /grasps in rank order until the executor
+    does not refuse one before moving: (final response or None if unanswered, its rank or
+    None if there were no grasps, how many were refused before it)."""
+    grasps = replay.latest_grasps
+    if grasps is None or not grasps.grasps:
+        return None, None, 0
+    for rank, grasp in enumerate(grasps.grasps):
+        request = ExecuteGrasp.Request(use_index=False, grasp=grasp)
+        request.header = grasps.header
+        response = replay.call(ExecuteGrasp, "execute_grasp", request, timeout_s)
+        if response is None or response.result_code not in REFUSED_BEFORE_MOTION or rank == len(grasps.grasps) - 1:
+            return response, rank, rank
+
+
 def last_count(log_text, pattern):
     """The numbers of the last log line matching `pattern` (a regex with groups)."""
     found = re.findall(pattern, log_text)
@@ -163,7 +191,7 @@ def run(args) -> dict:
     camera_pose = [float(v) for v in (*T[:3, 3], *q)]
     procs = Processes(out)
     results = collections.Counter()
-    unanswered = 0
+    unanswered = refused = 0
     report = {"duration_s": args.duration_s, "rate_hz": args.rate_hz, "execute": not args.no_execute}
     try:
         cam = f"[{','.join(f'{v:.9f}' for v in camera_pose)}]"
@@ -206,13 +234,13 @@ def run(args) -> dict:
             publisher.join(1.0)
             if args.no_execute or time.monotonic() < next_execute or time.monotonic() - t0 > args.duration_s - 30:
                 continue
-            response = replay.call(ExecuteGrasp, "execute_grasp", ExecuteGrasp.Request(use_index=True, grasp_index=0), 240)
-            name = "UNANSWERED" if response is None else next(
-                (n for n in dir(ExecuteGrasp.Response) if n.isupper() and getattr(ExecuteGrasp.Response, n) == response.result_code),
-                str(response.result_code))
+            response, rank, refused_now = execute_best_accepted(replay)
+            refused += refused_now
+            name = "NO_GRASPS" if rank is None else "UNANSWERED" if response is None else result_name(response)
             results[name] += 1
-            unanswered += response is None
+            unanswered += rank is not None and response is None
             print(f"soak: /execute_grasp at {time.monotonic() - t0:.0f} s -> {name}"
+                  + (f" on grasp #{rank + 1} ({refused_now} refused before it)" if rank is not None else "")
                   + (f" ({response.message})" if response is not None else ""), flush=True)
             replay.call(LoadScene, "load_scene", LoadScene.Request(seed=args.seed, n_objects=args.objects,
                                                                    arrangement="packed"), 120)
@@ -240,7 +268,8 @@ def run(args) -> dict:
         "volumes_detected": detected[0] if detected else None, "volumes_superseded": detected[1] if detected else None,
         "grasps_received": replay.grasps_received,
         "latency_ms_p50": round(percentile(lat, 50), 2), "latency_ms_p95": round(percentile(lat, 95), 2),
-        "latency_samples": len(lat), "execute_results": dict(results), "load_avg": os.getloadavg(),
+        "latency_samples": len(lat), "execute_results": dict(results),
+        "execute_refused_before_motion": refused, "load_avg": os.getloadavg(),
     })
     ok = (all(alive.values()) and all(g < RSS_GROWTH_LIMIT for g in growth.values())
           and replay.grasps_received >= elapsed / 2.0 and unanswered == 0)
@@ -255,6 +284,8 @@ def run(args) -> dict:
     print(f"volumes_published={report['volumes_published']} volumes_superseded_in_detect={report['volumes_superseded']}")
     print(f"grasps_received={replay.grasps_received}")
     print(f"execute_results={json.dumps(dict(results))}")
+    print(f"execute_refused_before_motion={refused} (grasps the executor refused before moving, "
+          "each followed by the next-ranked one)")
     print(f"load_avg_1m={os.getloadavg()[0]:.1f}")
     print(f"latency_ms_p50={report['latency_ms_p50']}")
     print(f"latency_ms_p95={report['latency_ms_p95']} (goal <= {LATENCY_GOAL_P95_MS:g})")
