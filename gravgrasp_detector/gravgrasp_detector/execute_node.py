@@ -204,14 +204,17 @@ class ExecuteNode(Node):
     def _on_execute(self, request, response):
         t0 = time.monotonic()
         try:
-            outcome, grasp = self._run(request)
+            outcome, grasp, index, refused = self._run(request)
             response.executed_grasp = grasp
+            response.executed_index, response.refused_before_motion = index, refused
         except Abort as abort:
             outcome = abort.outcome
         response.success = outcome.success
         response.result_code = int(outcome.code)
         response.message = outcome.message
-        text = f"execute_grasp: {outcome.code.name} in {time.monotonic() - t0:.1f} s: {outcome.message}"
+        which = (f" on grasp #{response.executed_index + 1} ({response.refused_before_motion} refused before it)"
+                 if request.use_index and request.first_feasible else "")
+        text = f"execute_grasp: {outcome.code.name}{which} in {time.monotonic() - t0:.1f} s: {outcome.message}"
         # rclpy refuses two severities from one call site, hence two lines.
         if outcome.success:
             self.get_logger().info(text)
@@ -227,15 +230,20 @@ class ExecuteNode(Node):
                 have = 0 if grasps is None else len(grasps.grasps)
                 raise Abort(ResultCode.INVALID_REQUEST,
                             f"grasp index {request.grasp_index} is out of range: the latest /grasps has {have}")
-            grasp, frame = grasps.grasps[request.grasp_index], grasps.header.frame_id
+            first = request.grasp_index
+            candidates = grasps.grasps[first:] if request.first_feasible else [grasps.grasps[first]]
+            frame = grasps.header.frame_id
         else:
-            grasp, frame = request.grasp, request.header.frame_id
+            first, candidates, frame = 0, [request.grasp], request.header.frame_id
         if frame != self.task_frame:
             raise Abort(ResultCode.INVALID_REQUEST,
                         f"grasp is in frame {frame!r}; this executor takes grasps in {self.task_frame!r}")
-        p, q = grasp.pose.position, grasp.pose.orientation
-        X = pose_to_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
-        return self.executor_core.execute(X, self._tsdf_arrays(), float(grasp.pregrasp_distance_m)), grasp
+        poses = []
+        for grasp in candidates:
+            p, q = grasp.pose.position, grasp.pose.orientation
+            poses.append((pose_to_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w]), float(grasp.pregrasp_distance_m)))
+        outcome, i, refused = self.executor_core.execute_first_feasible(poses, self._tsdf_arrays())
+        return outcome, candidates[i], first + i, refused
 
 
     def close(self):

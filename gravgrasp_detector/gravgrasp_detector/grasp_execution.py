@@ -26,6 +26,10 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
              fingers are still after the lift                     NO_OBJECT / DROPPED
   backing out that fails disarms (the hand may be stuck)         its failure's code
 
+`execute_first_feasible` takes grasps best first and runs the first one that passes the
+checks before any motion (limits, IK, collision, table): a grasp refused there costs no
+motion, so the next-ranked one is as safe to try; a failure after motion ends the call.
+
 Why a calibration: closing fully on nothing, a 2F-85's fingertips can meet and report
 an object (gOBJ 2), at an opening that varies by unit and by how the underactuated
 fingers folded (robotiq_driver/grip_calibration.py). A fixed "closed" limit of 3 mm
@@ -206,22 +210,44 @@ class GraspExecutor:
 
     def execute(self, X_grasp: np.ndarray, tsdf=None, pregrasp_distance_m: float = 0.0) -> Outcome:
         """Execute, or refuse with BUSY at once if another execution runs."""
+        return self.execute_first_feasible([(X_grasp, pregrasp_distance_m)], tsdf)[0]
+
+    def execute_first_feasible(self, grasps, tsdf=None) -> tuple[Outcome, int, int]:
+        """`grasps`: (X_grasp, pregrasp_distance_m) best first. Runs the first that passes
+        the checks before motion; returns (its outcome, its index, how many were refused
+        before it). If every one is refused: the last refusal, len - 1, len - 1. BUSY at
+        once if another execution runs (index 0, none refused)."""
         if not self._busy.acquire(blocking=False):
-            return Outcome(ResultCode.BUSY, "another grasp is being executed; retry when it has finished")
+            return Outcome(ResultCode.BUSY, "another grasp is being executed; retry when it has finished"), 0, 0
+        index = 0
         try:
             self.refuse_if_estopped("execute a grasp")
-            return self._execute(X_grasp, tsdf, pregrasp_distance_m)
+            for index, (X_grasp, pregrasp_distance_m) in enumerate(grasps):
+                try:
+                    poses = self._checked_poses(X_grasp, tsdf, pregrasp_distance_m)
+                except Abort as refusal:
+                    if index == len(grasps) - 1:
+                        if index:
+                            refusal.outcome.message = (f"all {len(grasps)} grasps refused before any motion; "
+                                                       f"the last: {refusal.outcome.message}")
+                        raise
+                    continue
+                return self._execute(poses), index, index
+            raise Abort(ResultCode.INVALID_REQUEST, "no grasp to execute")
         except Abort as abort:
             if abort.outcome.code in (ResultCode.GRIPPER_FAULT, ResultCode.ARM_FAULT, ResultCode.TIMEOUT,
                                       ResultCode.NOT_ARMED):
                 self.armed = False  # any fault disarms: a person must look before the next motion
-            return abort.outcome
+            return abort.outcome, index, index
         finally:
             self._busy.release()
 
     # -- stages ---------------------------------------------------------------------
 
-    def _execute(self, X_grasp, tsdf, pregrasp_distance_m) -> Outcome:
+    def _checked_poses(self, X_grasp, tsdf, pregrasp_distance_m) -> dict:
+        """The poses of an execution, after every check that needs no motion (limits, IK,
+        the open hand against the TSDF, the fingertips against the table); Abort with
+        UNREACHABLE or IN_COLLISION if one fails."""
         lim = self.limits
         poses = plan_poses(X_grasp, pregrasp_distance_m or lim.pregrasp_distance_m, lim.lift_height_m)
         if self.calibration is None and self._stored_calibration is None:
@@ -240,6 +266,10 @@ class GraspExecutor:
         hit = scene_collision(poses, tsdf, lim)
         if hit:
             raise Abort(ResultCode.IN_COLLISION, hit)
+        return poses
+
+    def _execute(self, poses) -> Outcome:
+        lim = self.limits
         self._require_armed("open the gripper")
         gripper = self._gripper()
         self._grip(gripper, 0.085, "opening")

@@ -159,6 +159,32 @@ def test_unreachable_grasp_is_refused_before_moving(stack):
     assert stack["arm"]["targets"] == []
 
 
+def test_first_feasible_walks_past_refused_grasps_of_the_latest_grasps(stack):
+    """use_index + first_feasible: grasps the checks refuse (here: outside the workspace, and
+    an approach pointing up) send the next-ranked one; the reply says which ran."""
+    node = stack["node"]
+    publisher = node.create_publisher(GraspArray, "grasps", 10)
+    up = top_down_grasp(0.15, 0.15, 0.09)
+    up.pose.orientation.x, up.pose.orientation.w = 0.0, 1.0
+    grasps = GraspArray()
+    grasps.header.frame_id = "task"
+    grasps.grasps = [top_down_grasp(0.9, 0.15), up, top_down_grasp(0.18, 0.15, 0.1), top_down_grasp()]
+    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
+    assert wait_until(lambda: publisher.get_subscription_count() > 0, 15)
+    publisher.publish(grasps)
+    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    only_first = execute_request(index=0)
+    assert wait_until(lambda: call(node, client, only_first).result_code != R.INVALID_REQUEST, 15)  # /grasps arrived
+    assert call(node, client, only_first).result_code == R.UNREACHABLE and stack["arm"]["targets"] == []
+    walk = execute_request(index=0)
+    walk.first_feasible = True
+    response = call(node, client, walk, 60)
+    assert response.result_code == R.SUCCESS, response.message
+    assert (response.executed_index, response.refused_before_motion) == (2, 2)
+    assert response.executed_grasp.pose.position.z == pytest.approx(0.1)
+    assert [round(z, 3) for z in stack["arm"]["targets"]] == [0.15, 0.1, 0.25]  # pre-grasp, grasp, lift of #3
+
+
 def tsdf_volume(stamp) -> TSDFVolume:
     """An observed but empty 40^3 workspace (no surface: nothing to collide with)."""
     msg = TSDFVolume()

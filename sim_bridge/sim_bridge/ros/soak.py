@@ -4,7 +4,7 @@ Replays depth at 30 Hz into the `tsdf` and `detect` nodes (each its own process,
 deployed) for `--duration-s` (10 min by default), and, unless `--no-execute`, runs the
 Drake sim bridge and the `execute` node beside them and, every `--execute-every-s`, asks
 `/execute_grasp` for the best-ranked grasp of the latest /grasps that the executor accepts
-(as the demo does: one it refuses before moving, hand in collision or unreachable, sends the
+(`first_feasible`: one it refuses before moving, hand in collision or unreachable, sends the
 next), reloading the sim's scene after each attempt. So the arm and the gripper run in every
 attempt, not only the checks.
 
@@ -50,7 +50,6 @@ from gravgrasp_msgs.msg import GraspArray
 from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
 
 from ..world import SceneConfig, SimWorld, WorldSettings
-from .clutter_demo import REFUSED_BEFORE_MOTION
 from .processes import Processes, installed
 
 RSS_GROWTH_LIMIT = 0.05
@@ -111,7 +110,6 @@ class Replay:
         self.published = 0
         self.latencies_ms = []
         self.grasps_received = 0
-        self.latest_grasps = None
         self._lock = threading.Lock()
         self.node.create_subscription(GraspArray, "grasps", self._on_grasps, 10)
         self.executor = MultiThreadedExecutor(num_threads=3)
@@ -125,7 +123,6 @@ class Replay:
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         with self._lock:
             self.grasps_received += 1
-            self.latest_grasps = msg
             if self.record:
                 self.latencies_ms.append((now - stamp) / 1e6)
 
@@ -159,21 +156,6 @@ def result_name(response) -> str:
     return next((n for n in dir(ExecuteGrasp.Response)
                  if n.isupper() and getattr(ExecuteGrasp.Response, n) == response.result_code),
                 str(response.result_code))
-
-
-def execute_best_accepted(replay, timeout_s=240):
-    """/execute_grasp on the grasps of the latest /grasps in rank order until the executor
-    does not refuse one before moving: (final response or None if unanswered, its rank or
-    None if there were no grasps, how many were refused before it)."""
-    grasps = replay.latest_grasps
-    if grasps is None or not grasps.grasps:
-        return None, None, 0
-    for rank, grasp in enumerate(grasps.grasps):
-        request = ExecuteGrasp.Request(use_index=False, grasp=grasp)
-        request.header = grasps.header
-        response = replay.call(ExecuteGrasp, "execute_grasp", request, timeout_s)
-        if response is None or response.result_code not in REFUSED_BEFORE_MOTION or rank == len(grasps.grasps) - 1:
-            return response, rank, rank
 
 
 def last_count(log_text, pattern):
@@ -234,14 +216,16 @@ def run(args) -> dict:
             publisher.join(1.0)
             if args.no_execute or time.monotonic() < next_execute or time.monotonic() - t0 > args.duration_s - 30:
                 continue
-            response, rank, refused_now = execute_best_accepted(replay)
-            refused += refused_now
-            name = "NO_GRASPS" if rank is None else "UNANSWERED" if response is None else result_name(response)
+            request = ExecuteGrasp.Request(use_index=True, grasp_index=0, first_feasible=True)
+            response = replay.call(ExecuteGrasp, "execute_grasp", request, 240)
+            name = "UNANSWERED" if response is None else result_name(response)
             results[name] += 1
-            unanswered += rank is not None and response is None
+            unanswered += response is None
+            if response is not None:
+                refused += response.refused_before_motion
             print(f"soak: /execute_grasp at {time.monotonic() - t0:.0f} s -> {name}"
-                  + (f" on grasp #{rank + 1} ({refused_now} refused before it)" if rank is not None else "")
-                  + (f" ({response.message})" if response is not None else ""), flush=True)
+                  + (f" on grasp #{response.executed_index + 1} ({response.refused_before_motion} refused before it):"
+                     f" {response.message}" if response is not None else ""), flush=True)
             replay.call(LoadScene, "load_scene", LoadScene.Request(seed=args.seed, n_objects=args.objects,
                                                                    arrangement="packed"), 120)
             next_execute = time.monotonic() + args.execute_every_s
