@@ -558,8 +558,9 @@ def test_first_feasible_runs_the_best_grasp_the_checks_pass_and_says_which(gripp
     ex, arm = make_executor(gripper_port)
     voxel = 0.0075
     grid = np.zeros((40, 40, 40), np.float32)
-    # The slab of the collision test beside the first grasp only: the second, 5 cm along x,
-    # clears it; the third is never tried.
+    # The slab of the collision test beside grasp(): the first candidate is outside the
+    # workspace, the second meets the slab, the third (5 cm along x) clears it and runs, the
+    # fourth is never tried.
     grid[int(0.135 / voxel):int(0.165 / voxel), int(0.195 / voxel):int(0.225 / voxel),
          int(0.04 / voxel):int(0.12 / voxel)] = 0.3
     candidates = [(grasp(x=0.9), 0.0), (grasp(), 0.0), (grasp(x=0.20), 0.0), (grasp(x=0.25), 0.0)]
