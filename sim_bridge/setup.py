@@ -32,6 +32,7 @@ setup(
             "table_size_study = sim_bridge.datagen.table_size_study:main",
             "perturbation_study = sim_bridge.datagen.perturbation_study:main",
             "label_execution_study = sim_bridge.benchmark.label_execution_study:main",
+            "refusal_study = sim_bridge.benchmark.refusal_study:main",
             "replay_round = sim_bridge.benchmark.replay:main",
         ],
     },

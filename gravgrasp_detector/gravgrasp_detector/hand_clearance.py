@@ -39,9 +39,10 @@ def points_in_hand(X_task_tcp: np.ndarray, points_task: np.ndarray, boxes_tcp=OP
     return hits
 
 
-def first_collision(poses: dict, tsdf) -> str:
-    """'' if the hand is clear at pre-grasp, along the approach and at the grasp;
-    otherwise a sentence saying where it collides. `tsdf`: (grid, voxel_size_m, origin)."""
+def collisions(poses: dict, tsdf) -> dict[str, dict[str, int]]:
+    """Occupied TSDF voxels inside the open hand, {check: {part: count}}, checks with hits
+    only: the hand at the pre-grasp pose, and swept along the approach to the grasp pose
+    (whose boxes contain the pre-grasp's). `tsdf`: (grid, voxel_size_m, origin)."""
     grid, voxel_size_m, origin = tsdf
     points = occupied_points(grid, voxel_size_m, origin)
     # Shrink boxes by half a voxel: a voxel centre half a voxel inside a box may be free.
@@ -49,12 +50,17 @@ def first_collision(poses: dict, tsdf) -> str:
     approach_m = float(np.linalg.norm(poses["grasp"][:3, 3] - poses["pregrasp"][:3, 3]))
     checks = [("pre-grasp pose", poses["pregrasp"], OPEN_HAND_BOXES_TCP),
               ("approach and grasp pose", poses["grasp"], swept_boxes(approach_m))]
-    for name, X, boxes in checks:
-        hits = points_in_hand(X, points, boxes, margin)
-        if hits:
-            where = ", ".join(f"{part}: {n}" for part, n in hits.items())
-            return (f"the open hand collides with the scene at the {name} (occupied TSDF voxels "
-                    f"inside the {where}): pick another grasp")
+    found = {name: points_in_hand(X, points, boxes, margin) for name, X, boxes in checks}
+    return {name: hits for name, hits in found.items() if hits}
+
+
+def first_collision(poses: dict, tsdf) -> str:
+    """'' if the hand is clear at pre-grasp, along the approach and at the grasp;
+    otherwise a sentence saying where it collides. `tsdf`: (grid, voxel_size_m, origin)."""
+    for name, hits in collisions(poses, tsdf).items():
+        where = ", ".join(f"{part}: {n}" for part, n in hits.items())
+        return (f"the open hand collides with the scene at the {name} (occupied TSDF voxels "
+                f"inside the {where}): pick another grasp")
     return ""
 
 
