@@ -30,6 +30,7 @@ help:
 	@echo "make symmetry-study - grasps copied to an object's symmetries, simulated against their originals (COPIES=rotation|mirror)"
 	@echo "make perturbation-study - held grasps moved 7.5 / 15 mm across the pads and shallower: how many still hold"
 	@echo "make label-execution-study - a sample of SCENES_OUT's labels executed as the benchmark executes grasps, per mode and weight (PER_MODE=40)"
+	@echo "make refusal-study - the grasps the executor refuses for collision on the held-out benchmark scenes, executed anyway: would they have held?"
 	@echo "make models        - train the shipped model and the comparison variants (resumable)"
 	@echo "make data-scenes   - v2 training scenes from the tables (resumable; SCENES=5000 WORKERS=2)"
 	@echo "make data-objects-v1 / data-scenes-v1 - the v1 dataset of the shipped models"
@@ -159,7 +160,7 @@ data-scenes-v5: setup
 
 # Side by side on the same objects: v1's free sampler at v1's label settings and the
 # v2 sampler at v2's settings (~10 min on 2 cores). Last line: labels per scene per CPU-hour.
-.PHONY: bench-datagen label-settings-study symmetry-study perturbation-study label-execution-study data-objects-v1 data-scenes-v1
+.PHONY: bench-datagen label-settings-study symmetry-study perturbation-study label-execution-study refusal-study data-objects-v1 data-scenes-v1
 bench-datagen: setup
 	@$(ROS) ros2 run sim_bridge bench_datagen --meshes ../shared/meshes/vgn_train --exclude $(HELD_OUT) \
 	  --workers $(WORKERS) --json out/bench_datagen.json
@@ -190,6 +191,13 @@ label-execution-study: setup
 	@$(ROS) ros2 run sim_bridge label_execution_study --scenes $(SCENES_OUT) --objects models/grasp_tables_v2 \
 	  --meshes ../shared/meshes/vgn_train --per-mode $(PER_MODE) --weights 1.5,0.1 --workers $(WORKERS) \
 	  --out out/label_execution/$(notdir $(SCENES_OUT))
+
+# Is the executor's collision check too strict? Of Ours' top 5 grasps on the first view of
+# each held-out benchmark scene, those it refuses for collision, executed anyway (~1 CPU-min
+# each), beside the grasp the benchmark ran. Last line: refused_success_fraction=.
+refusal-study: setup
+	@$(ROS) ros2 run sim_bridge refusal_study --bench sim_bridge/results/heldout_v4 --model models/gravgrasp.pt \
+	  --weights 1.5,0.1 --workers $(WORKERS) --out out/refusal_study/heldout_v4
 
 # Dataset v1 (the shipped models' data): free sampler, settled poses.
 data-objects-v1: setup
