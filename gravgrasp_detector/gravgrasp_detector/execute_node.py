@@ -242,8 +242,8 @@ class ExecuteNode(Node):
         for grasp in candidates:
             p, q = grasp.pose.position, grasp.pose.orientation
             poses.append((pose_to_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w]), float(grasp.pregrasp_distance_m)))
-        outcome, i, refused = self.executor_core.execute_first_feasible(poses, self._tsdf_arrays())
-        return outcome, candidates[i], first + i, refused
+        outcome, i = self.executor_core.execute_first_feasible(poses, self._tsdf_arrays())
+        return outcome, candidates[i], first + i, i  # i grasps were refused before it
 
 
     def close(self):

@@ -212,13 +212,13 @@ class GraspExecutor:
         """Execute, or refuse with BUSY at once if another execution runs."""
         return self.execute_first_feasible([(X_grasp, pregrasp_distance_m)], tsdf)[0]
 
-    def execute_first_feasible(self, grasps, tsdf=None) -> tuple[Outcome, int, int]:
+    def execute_first_feasible(self, grasps, tsdf=None) -> tuple[Outcome, int]:
         """`grasps`: (X_grasp, pregrasp_distance_m) best first. Runs the first that passes
-        the checks before motion; returns (its outcome, its index, how many were refused
-        before it). If every one is refused: the last refusal, len - 1, len - 1. BUSY at
-        once if another execution runs (index 0, none refused)."""
+        the checks before motion; returns (its outcome, its index = how many were refused
+        before it). If every one is refused: the last refusal, len - 1. BUSY at once if
+        another execution runs (index 0)."""
         if not self._busy.acquire(blocking=False):
-            return Outcome(ResultCode.BUSY, "another grasp is being executed; retry when it has finished"), 0, 0
+            return Outcome(ResultCode.BUSY, "another grasp is being executed; retry when it has finished"), 0
         index = 0
         try:
             self.refuse_if_estopped("execute a grasp")
@@ -232,13 +232,13 @@ class GraspExecutor:
                                                        f"the last: {refusal.outcome.message}")
                         raise
                     continue
-                return self._execute(poses), index, index
+                return self._execute(poses), index
             raise Abort(ResultCode.INVALID_REQUEST, "no grasp to execute")
         except Abort as abort:
             if abort.outcome.code in (ResultCode.GRIPPER_FAULT, ResultCode.ARM_FAULT, ResultCode.TIMEOUT,
                                       ResultCode.NOT_ARMED):
                 self.armed = False  # any fault disarms: a person must look before the next motion
-            return abort.outcome, index, index
+            return abort.outcome, index
         finally:
             self._busy.release()
 

@@ -564,22 +564,22 @@ def test_first_feasible_runs_the_best_grasp_the_checks_pass_and_says_which(gripp
     grid[int(0.135 / voxel):int(0.165 / voxel), int(0.195 / voxel):int(0.225 / voxel),
          int(0.04 / voxel):int(0.12 / voxel)] = 0.3
     candidates = [(grasp(x=0.9), 0.0), (grasp(), 0.0), (grasp(x=0.20), 0.0), (grasp(x=0.25), 0.0)]
-    outcome, index, refused = ex.execute_first_feasible(candidates, tsdf=(grid, voxel, np.zeros(3)))
-    assert (outcome.code, index, refused) == (ge.ResultCode.SUCCESS, 2, 2), outcome.message
+    outcome, index = ex.execute_first_feasible(candidates, tsdf=(grid, voxel, np.zeros(3)))
+    assert (outcome.code, index) == (ge.ResultCode.SUCCESS, 2), outcome.message
     assert all(abs(X[0, 3] - 0.20) < 1e-6 for X, _ in arm.targets)  # only the third grasp moved the arm
 
 
 def test_first_feasible_stops_at_a_failure_after_motion(gripper_port, fingers):
     ex, arm = make_executor(gripper_port)
     fingers.size_m = None  # nothing at any grasp: the close finds no object
-    outcome, index, refused = ex.execute_first_feasible([(grasp(), 0.0), (grasp(x=0.20), 0.0)])
-    assert (outcome.code, index, refused) == (ge.ResultCode.NO_OBJECT, 0, 0), outcome.message
+    outcome, index = ex.execute_first_feasible([(grasp(), 0.0), (grasp(x=0.20), 0.0)])
+    assert (outcome.code, index) == (ge.ResultCode.NO_OBJECT, 0), outcome.message
     assert not any(abs(X[0, 3] - 0.20) < 1e-6 for X, _ in arm.targets)
 
 
 def test_first_feasible_with_every_grasp_refused_says_so_and_does_not_move(gripper_port):
     ex, arm = make_executor(gripper_port)
-    outcome, index, refused = ex.execute_first_feasible([(grasp(x=0.9), 0.0), (grasp(q=[0, 0, 0, 1.0]), 0.0)])
-    assert (outcome.code, index, refused) == (ge.ResultCode.UNREACHABLE, 1, 1)
+    outcome, index = ex.execute_first_feasible([(grasp(x=0.9), 0.0), (grasp(q=[0, 0, 0, 1.0]), 0.0)])
+    assert (outcome.code, index) == (ge.ResultCode.UNREACHABLE, 1)
     assert outcome.message.startswith("all 2 grasps refused before any motion; the last:") and "cone" in outcome.message
     assert arm.targets == []
