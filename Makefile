@@ -197,7 +197,7 @@ label-execution-study: setup
 # each), beside the grasp the benchmark ran. Last line: refused_success_fraction=.
 refusal-study: setup
 	@$(ROS) ros2 run sim_bridge refusal_study --bench sim_bridge/results/heldout_v4 --model models/gravgrasp.pt \
-	  --weights 1.5,0.1 --workers $(WORKERS) --out out/refusal_study/heldout_v4
+	  --weights 1.5,0.1 --workers $(WORKERS) --out sim_bridge/results/refusal_study/heldout_v4
 
 # Dataset v1 (the shipped models' data): free sampler, settled poses.
 data-objects-v1: setup

@@ -19,7 +19,7 @@ This study measures which, on a benchmark run's scenes:
    executed here when there is none.
 
     python -m sim_bridge.benchmark.refusal_study --bench sim_bridge/results/heldout_v4 \\
-        --method ours --model models/gravgrasp.pt --weights 1.5 --out out/refusal_study/heldout_v4
+        --method ours --model models/gravgrasp.pt --weights 1.5,0.1 --out sim_bridge/results/refusal_study/heldout_v4
 
 One JSON per scene and weight under --out/scenes (a rerun resumes), summary.json beside
 it; the last line printed is `refused_success_fraction=` (successes among the executed
