@@ -44,6 +44,7 @@ from gravgrasp_detector.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
 from .clearing import Refused
+from .clutter_benchmark import parse_weights
 from .protocol import METHODS, RANKING_VARIANTS, Protocol, weight_key
 from .report import outcome_class
 from .rounds import RoundTask, make_cell
@@ -196,11 +197,9 @@ def main(argv=None) -> int:
     err = lambda m: print(f"refusal_study: {m}", file=sys.stderr) or 2  # noqa: E731
     bench = pathlib.Path(args.bench)
     try:
-        weights = [float(w) for w in args.weights.split(",")]
-        if not all(np.isfinite(w) and w > 0 for w in weights):
-            raise ValueError
-    except ValueError:
-        return err(f"--weights {args.weights!r}: give positive kg values separated by commas")
+        weights = parse_weights(args.weights)
+    except ValueError as e:
+        return err(f"--{e}")
     if args.top < 1:
         return err(f"--top {args.top}: give at least 1")
     if not (bench / "config.json").is_file() or not sorted((bench / "scenes").glob("*.json")):
