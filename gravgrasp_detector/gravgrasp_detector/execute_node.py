@@ -28,8 +28,8 @@ from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
 from .arm_reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
-from .grasp_execution import (Abort, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome, ResultCode,
-                              pose_to_matrix)
+from .grasp_execution import (Abort, ArmMotion, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome,
+                              ResultCode, pose_to_matrix)
 from .ros_interface import described, pose_msg_from_matrix, run_node
 from .tsdf_node import VOLUME_QOS
 
@@ -78,7 +78,8 @@ class ServiceArm:
                 raise ArmUnavailable(f"service {self.client.srv_name} left the ROS graph "
                                      f"{now - gone_since:.1f} s ago without answering")
         response = future.result()
-        return bool(response.success), response.message
+        return ArmMotion(bool(response.success), response.message, bool(response.stopped_by_contact),
+                         float(response.distance_left_m))
 
 
 class ExecuteNode(Node):
@@ -121,6 +122,11 @@ class ExecuteNode(Node):
             min_object_width_m=param("min_object_width_m", defaults.min_object_width_m,
                                      "held = gOBJ 2 and an opening at least this much wider than the "
                                      "empty-closed calibration [m]"),
+            close_on_contact_within_m=param(
+                "close_on_contact_within_m", defaults.close_on_contact_within_m,
+                "guarded approach: an approach the arm's contact stop halts at most this far short of the grasp "
+                "closes there (1 mm backed off) instead of backing out [m]; 0: off. Needs an arm whose "
+                "MoveToPose answers distance_left_m (the sim bridge, ur_arm)"),
         )
         empty_closed = param("gripper_empty_closed_m", -1.0,
                              "opening where this gripper's fingers stop closing on nothing [m], as measured "

@@ -80,6 +80,8 @@ class MoveResult:
     success: bool
     message: str
     joint_positions: list = dataclasses.field(default_factory=list)
+    stopped_by_contact: bool = False  # the contact force limit ended the motion
+    distance_left_m: float = math.nan  # from where the TCP stopped to the target [m]; NaN: nothing moved
 
 
 class URArm:
@@ -351,36 +353,43 @@ class URArm:
             time.sleep(s.poll_period_s)
             if self._stop.is_set():
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
-                return MoveResult(True, False, f"motion stopped by stop_motion {self._where(receive, target)}", joints)
+                where, left_m = self._where(receive, target)
+                return MoveResult(True, False, f"motion stopped by stop_motion {where}", joints, False, left_m)
             if not (self._rpc(control.isConnected) and self._rpc(receive.isConnected)):
                 raise self._lost("the RTDE connection was lost during a motion: the arm's state is unknown, "
                                  "check it on the teach pendant")
             safety = self._rpc(receive.getSafetyMode)
             if safety not in SAFETY_MODES_THAT_MOVE:
+                where, left_m = self._where(receive, target)
                 return MoveResult(True, False, f"{SAFETY_MODES.get(safety, safety)} during the motion "
-                                  f"{self._where(receive, target)}: clear it on the teach pendant", joints)
+                                  f"{where}: clear it on the teach pendant", joints, False, left_m)
             if limit_n > 0:
                 force_n = self._tcp_force_n(receive)
                 if force_n - force_start_n > limit_n:
                     self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
-                    return MoveResult(True, False, f"stopped by contact {self._where(receive, target)}: the force on "
+                    where, left_m = self._where(receive, target)
+                    return MoveResult(True, False, f"stopped by contact {where}: the force on "
                                       f"the hand rose from {force_start_n:.0f} to {force_n:.0f} N, by more than the "
-                                      f"{limit_n:.0f} N limit (contact_force_limit_n)", joints)
+                                      f"{limit_n:.0f} N limit (contact_force_limit_n)", joints, True, left_m)
             progress = self._rpc(control.getAsyncOperationProgress)
             if progress < 0 and progress != before:
                 break
             if self._clock() > deadline:
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
+                where, left_m = self._where(receive, target)
                 return MoveResult(True, False, f"motion did not end within {expected_s + s.motion_timeout_margin_s:.1f} s "
-                                  f"(speed slider {100 * slider:.0f} %); stopped {self._where(receive, target)}", joints)
+                                  f"(speed slider {100 * slider:.0f} %); stopped {where}", joints, False, left_m)
         if self._stop.is_set():  # stop() halts the arm itself: the end seen may be its stopL
-            return MoveResult(True, False, f"motion stopped by stop_motion {self._where(receive, target)}", joints)
+            where, left_m = self._where(receive, target)
+            return MoveResult(True, False, f"motion stopped by stop_motion {where}", joints, False, left_m)
         actual = self._rpc(receive.getActualTCPPose)
         dp, da = pose_error(actual, target)
         if dp > s.position_tolerance_m or da > s.orientation_tolerance_deg:
             return MoveResult(True, False, f"motion ended {dp * 1000:.1f} mm / {da:.1f} deg from the target "
-                              f"(tolerance {s.position_tolerance_m * 1000:g} mm / {s.orientation_tolerance_deg:g} deg)", joints)
-        return MoveResult(True, True, f"reached the target ({dp * 1000:.1f} mm, {da:.2f} deg){speed_note}", joints)
+                              f"(tolerance {s.position_tolerance_m * 1000:g} mm / {s.orientation_tolerance_deg:g} deg)",
+                              joints, False, dp)
+        return MoveResult(True, True, f"reached the target ({dp * 1000:.1f} mm, {da:.2f} deg){speed_note}", joints,
+                          False, dp)
 
     def flange_in_task(self) -> np.ndarray:
         """X_task_flange now (from the actual TCP pose and the TCP offset). Raises ConnectionLost."""
@@ -395,9 +404,10 @@ class URArm:
         """|force| of the controller's TCP wrench (payload-compensated), N."""
         return float(np.linalg.norm(np.asarray(self._rpc(receive.getActualTCPForce), float)[:3]))
 
-    def _where(self, receive, target) -> str:
+    def _where(self, receive, target) -> tuple[str, float]:
+        """(words, distance [m]): where the TCP stopped, from the target."""
         dp, _ = pose_error(self._rpc(receive.getActualTCPPose), target)
-        return f"{dp * 1000:.0f} mm before the target"
+        return f"{dp * 1000:.0f} mm before the target", float(dp)
 
     def stop(self) -> bool:
         """Halt the running motion (stopL). True if a motion was running; its move()

@@ -197,6 +197,7 @@ class URArmNode(Node):
 
     def _on_move(self, request, response):
         response.joint_positions = []
+        response.distance_left_m = math.nan  # nothing moved, until a motion says otherwise
         try:
             X = self._target(request.target)
             result = self.arm.move(X, float(request.speed_mps), check_only=bool(request.check_only))
@@ -210,6 +211,7 @@ class URArmNode(Node):
             return response
         response.reachable, response.success = result.reachable, result.success
         response.message, response.joint_positions = result.message, result.joint_positions
+        response.stopped_by_contact, response.distance_left_m = result.stopped_by_contact, result.distance_left_m
         if not request.check_only and not result.success:
             self.get_logger().warn(f"move_to_pose: {result.message}")
         return response

@@ -235,6 +235,64 @@ def test_an_approach_stopped_by_contact_backs_out_to_the_pregrasp(gripper_port):
     assert gripper_port.emulator.width_m == pytest.approx(0.085) and ex.armed
 
 
+def short_approach(arm, left_m, by_contact=True):
+    """The approach ends `left_m` short of the grasp pose, as the arm reports it (ArmMotion)."""
+    original = arm.move_to
+
+    def move_to(X, speed, timeout):
+        if is_grasp(X):
+            arm.targets.append((X.copy(), speed))
+            return ge.ArmMotion(False, CONTACT if by_contact else "protective stop", by_contact, left_m)
+        return original(X, speed, timeout)
+    arm.move_to = move_to
+
+
+def test_a_guarded_approach_closes_where_contact_stopped_it(gripper_port):
+    """close_on_contact_within_m: stopped 4 mm short, the hand backs off 1 mm and closes
+    there, then lifts straight up from there."""
+    ex, arm = make_executor(gripper_port, close_on_contact_within_m=0.01)
+    short_approach(arm, 0.004)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.SUCCESS, outcome.message
+    assert "closed 5.0 mm short of the grasp pose" in outcome.message, outcome.message
+    assert [round(X[2, 3], 4) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.085, 0.235]
+    assert arm.targets[3][1] == pytest.approx(0.05)  # the back-off at the approach speed
+    assert np.allclose(arm.targets[3][0][:3, :3], arm.targets[2][0][:3, :3])
+
+
+@pytest.mark.parametrize("left_m, by_contact", [(0.012, True), (0.004, False), (float("nan"), True)])
+def test_a_guarded_approach_backs_out_when_too_short_or_not_by_contact(gripper_port, left_m, by_contact):
+    """Farther short than the limit, stopped for another reason, or how far unknown: back
+    out as without the guard."""
+    ex, arm = make_executor(gripper_port, close_on_contact_within_m=0.01)
+    short_approach(arm, left_m, by_contact)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE and ex.armed, outcome.message
+    assert outcome.message.endswith("; backed out to the pre-grasp"), outcome.message
+    assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.13]
+    assert gripper_port.emulator.width_m == pytest.approx(0.085)
+
+
+def test_without_the_guard_a_short_contact_stop_backs_out(gripper_port):
+    ex, arm = make_executor(gripper_port)  # close_on_contact_within_m 0: the default
+    short_approach(arm, 0.001)
+    assert ex.execute(grasp()).code == ge.ResultCode.UNREACHABLE
+    assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.13]
+
+
+def test_a_bad_guard_distance_is_refused_at_start(gripper_port):
+    for bad in (-0.001, float("nan")):
+        with pytest.raises(ValueError, match="close_on_contact_within_m"):
+            make_executor(gripper_port, close_on_contact_within_m=bad)
+
+
+def test_an_arm_answering_a_pair_is_read_by_its_words():
+    motion = ge.arm_motion((False, CONTACT))
+    assert (motion.arrived, motion.stopped_by_contact) == (False, True) and np.isnan(motion.distance_left_m)
+    assert ge.arm_motion((True, "reached")).stopped_by_contact is False
+    assert ge.arm_motion((False, "outside the arm's reach")).stopped_by_contact is False
+
+
 def test_a_lift_stopped_by_contact_opens_and_backs_out(gripper_port):
     ex, arm = make_executor(gripper_port)
     stopping_arm(arm, is_lift)

@@ -152,10 +152,13 @@ def test_contact_stops_a_motion_by_the_force_gained_since_it_began():
     assert result.message.startswith("stopped by contact") and "rose from 11 to 90 N" in result.message, result.message
     assert "60 N limit" in result.message and ur.called("stopL")
     assert time.monotonic() - t0 < 0.8
+    # how far short, in data too: the executor's guarded approach reads it
+    assert result.stopped_by_contact and 0.0 < result.distance_left_m < 0.2, result
     # Still pressing with 90 N, past the limit: backing off is not stopped by that press.
     ur.contact_after_s = None
     back = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
     assert back.success, back.message
+    assert not back.stopped_by_contact and back.distance_left_m < 1e-3, back
 
 
 def test_contact_stop_off_reads_no_force():

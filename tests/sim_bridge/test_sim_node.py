@@ -67,10 +67,12 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
 
     far = call(target(2.0, 0.15, 0.4), check_only=True)
     assert not far.reachable and not far.success and "outside" in far.message
+    assert math.isnan(far.distance_left_m) and not far.stopped_by_contact  # nothing moved
     near = call(target(0.15, 0.15, 0.45), check_only=True)
     assert near.reachable and not near.success
     moved = call(target(0.15, 0.15, 0.45))
     assert moved.reachable and moved.success, moved.message
+    assert moved.distance_left_m == 0.0 and not moved.stopped_by_contact
     # a slow motion, halted from another call (the executor's emergency stop would)
     future = move.call_async(MoveToPose.Request(target=target(0.15, 0.15, 0.30), speed_mps=0.02))
     stop = ros_node.create_client(Trigger, "stop_motion")
@@ -80,6 +82,7 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
         stopped = call_service(ros_node, stop, Trigger.Request())
     assert spin_until(ros_node, future.done, 15)
     assert not future.result().success and future.result().message == "stopped on request"
+    assert 0.0 < future.result().distance_left_m < 0.15 and not future.result().stopped_by_contact
     nan = call(target(math.nan, 0.15, 0.45))
     assert not nan.success and "NaN" in nan.message
     frame = call(target(0.15, 0.15, 0.45, frame="base_link"))

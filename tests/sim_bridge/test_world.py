@@ -98,12 +98,14 @@ def test_fingers_close_fully_on_nothing_and_an_obstacle_stops_the_arm():
     # the stand-in cannot push the palm through the box (and the box through the table)
     close_fingers(SimFingerPlant(world), width_m=0.04, target_m=0.085)
     box_top = TABLE_HEIGHT_M + 0.08
-    ok, message = world.move_tcp(pose(R_TOP_DOWN, (0.03, 0.03, box_top + 0.08)), 0.25)
-    assert ok, message
-    ok, message = world.move_tcp(pose(R_TOP_DOWN, (0.03, 0.03, TABLE_HEIGHT_M + 0.01)), 0.05)
-    assert not ok and "stopped by contact" in message, message
+    above = world.travel(pose(R_TOP_DOWN, (0.03, 0.03, box_top + 0.08)), 0.25)
+    assert above.result[0] and above.left_m == 0.0 and not above.stopped_by_contact, above.result
+    pressed = world.travel(pose(R_TOP_DOWN, (0.03, 0.03, TABLE_HEIGHT_M + 0.01)), 0.05)
+    ok, message = pressed.result
+    assert not ok and "stopped by contact" in message and pressed.stopped_by_contact, message
     z = world.tcp_pose()[2, 3]
     assert box_top - 0.06 < z < box_top - 0.05, z  # palm (55 mm behind the TCP) on the box
+    assert pressed.left_m == pytest.approx(z - (TABLE_HEIGHT_M + 0.01), abs=1e-6)  # how far short, for the guard
     # The limit counts the force gained since a motion began (a wrist sensor zeroed per
     # motion, as ur_arm reads the UR's): with the limit below the press the hand still
     # exerts, backing off works, and pressing further is stopped at once.

@@ -98,6 +98,10 @@ def main(argv=None) -> int:
     p.add_argument("--clear-hand", action="store_true",
                    help="detection's step 6: only grasps whose open hand clears the observed scene "
                         "(the detect node's clear_hand); default: the paper's selection")
+    p.add_argument("--close-on-contact-within-m", type=float, default=Protocol.close_on_contact_within_m,
+                   help="the executor's guarded approach: an approach the arm's contact stop halts at most this "
+                        "far short of the grasp closes there instead of backing out [m]; default 0: off, as the "
+                        "execute node")
     p.add_argument("--hold-s", type=float, default=Protocol.hold_s)
     p.add_argument("--shake-m", type=float, default=Protocol.shake_m, help="0 = no shake")
     p.add_argument("--time-step-s", type=float, default=Protocol.time_step_s)
@@ -144,9 +148,14 @@ def main(argv=None) -> int:
     if not methods:
         print("benchmark: no method has a model file: train them (models/) or pass --model NAME=PATH", file=sys.stderr)
         return 2
+    if not (math.isfinite(args.close_on_contact_within_m) and args.close_on_contact_within_m >= 0):
+        print(f"benchmark: --close-on-contact-within-m {args.close_on_contact_within_m}: give a distance >= 0 [m] "
+              "(0 = off)", file=sys.stderr)
+        return 2
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
                         hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
-                        relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand)
+                        relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand,
+                        close_on_contact_within_m=args.close_on_contact_within_m)
     out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
     t0 = time.monotonic()
     try:

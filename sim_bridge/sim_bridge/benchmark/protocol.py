@@ -65,6 +65,9 @@ class Protocol:
     # detection's step 6 (gravgrasp_detector.detection): off, the paper's selection. Kept
     # out of config.json while off, so runs from before it existed stay resumable.
     clear_hand: bool = False
+    # the executor's guarded approach (ExecutionLimits.close_on_contact_within_m, m): 0,
+    # off, as the node's default; kept out of config.json while off, as clear_hand
+    close_on_contact_within_m: float = 0.0
 
 
 # objects and scenes

@@ -131,8 +131,9 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     config = {"seed": seed, "meshes": str(pathlib.Path(meshes_dir).resolve()) if meshes_dir else None,
               "procedural_seed": None if meshes_dir else PROCEDURAL_SEED, "objects_per_scene": OBJECTS_PER_SCENE,
               "protocol": dataclasses.asdict(protocol)}
-    if not protocol.clear_hand:  # older runs' config.json has no such key: they stay resumable
-        del config["protocol"]["clear_hand"]
+    for off_by_default in ("clear_hand", "close_on_contact_within_m"):
+        if not getattr(protocol, off_by_default):  # older runs' config.json has no such key: they stay resumable
+            del config["protocol"][off_by_default]
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
     config_path = out / "config.json"

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gravgrasp_detector.grasp_execution import (Abort, ExecutionLimits, GraspExecutor, check_limits, plan_poses,
-                                                scene_collision)
+from gravgrasp_detector.grasp_execution import (Abort, ArmMotion, ExecutionLimits, GraspExecutor, check_limits,
+                                                plan_poses, scene_collision)
 from robotiq_driver.gripper_client import GripperTimeout
 from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus
 
@@ -25,8 +25,9 @@ class SimArm:
     def __init__(self, world):
         self.world = world
 
-    def move_to(self, X_task_tcp, speed_mps, timeout_s):
-        return self.world.move_tcp(X_task_tcp, speed_mps, timeout_s)
+    def move_to(self, X_task_tcp, speed_mps, timeout_s) -> ArmMotion:
+        m = self.world.travel(X_task_tcp, speed_mps, timeout_s)
+        return ArmMotion(*m.result, m.stopped_by_contact, m.left_m)
 
 
 class SimGripper:
@@ -88,7 +89,8 @@ class SimCell:
         # force per the paper. No fingertip-table check (table_z_m), as the node's default:
         # its parallel-closing estimate refused half of the power labels simulation passed.
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
-                                      max_speed_mps=protocol.free_space_speed_mps)
+                                      max_speed_mps=protocol.free_space_speed_mps,
+                                      close_on_contact_within_m=protocol.close_on_contact_within_m)
         self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
                                       reachability=None, log=lambda *_: None)
         self.home = self.world.tcp_pose()

@@ -222,6 +222,7 @@ class SimNode(Node):
 
     def _on_move(self, request, response):
         response.joint_positions = []  # the stand-in has no joints
+        response.distance_left_m = math.nan  # nothing moved, until a motion says otherwise
         try:
             X = self._target(request.target)
         except ValueError as e:
@@ -248,6 +249,7 @@ class SimNode(Node):
                 response.success, response.message = False, f"motion did not finish: {why}"
                 return response
         response.success, response.message = motion.result
+        response.stopped_by_contact, response.distance_left_m = motion.stopped_by_contact, motion.left_m
         return response
 
     def _on_fault(self, request, response):

@@ -34,7 +34,8 @@ def _min_jerk(tau):
 
 
 class Motion:
-    """One straight-line TCP motion; `done` is set with `result` = (success, message)."""
+    """One straight-line TCP motion; `done` is set with `result` = (success, message),
+    `stopped_by_contact` and `left_m` (from where the TCP stopped to the goal [m])."""
 
     PEAK_SPEED_FACTOR = 1.875  # peak / mean speed of the minimum-jerk profile
 
@@ -50,6 +51,8 @@ class Motion:
         self.done = threading.Event()
         self.result = None
         self.travelled_m = 0.0
+        self.stopped_by_contact = False
+        self.left_m = math.nan
 
     def reference(self, t_s):
         """(X_task_tcp 4x4, v_task [3], w_task [3]) at sim time t_s."""
@@ -62,7 +65,13 @@ class Motion:
     def finished(self, t_s) -> bool:
         return t_s >= self.t0_s + self.duration_s
 
-    def finish(self, success, message):
+    def finish(self, success, message, X_stopped=None, by_contact=False):
+        """End the motion; `X_stopped`: where the TCP stopped (None: at the goal if
+        `success`, else unknown or never started: `left_m` stays NaN)."""
+        X = self.X_goal if success else X_stopped
+        if X is not None:
+            self.left_m = float(np.linalg.norm(self.X_goal[:3, 3] - np.asarray(X)[:3, 3]))
+        self.stopped_by_contact = bool(by_contact)
         self.result = (bool(success), message)
         self.done.set()
 

@@ -165,7 +165,7 @@ class SimWorld:
                 done = float(np.linalg.norm(X_now[:3, 3] - m.X_start[:3, 3]))
                 m.finish(False, f"stopped by contact after {done:.3f} of {m.length_m:.3f} m: "
                                 f"the force on the hand rose from {m.force_start_n:.0f} to {force_n:.0f} N, by more "
-                                f"than the {self.settings.max_contact_force_n:.0f} N limit")
+                                f"than the {self.settings.max_contact_force_n:.0f} N limit", X_now, by_contact=True)
             elif m.finished(self.time_s):
                 self._hold = m.X_goal
                 m.finish(True, f"reached the target ({m.length_m:.3f} m in {m.duration_s:.2f} s)")
@@ -226,11 +226,15 @@ class SimWorld:
             if m is None or m.done.is_set():
                 return False
             self._hold = m.reference(self.time_s)[0]
-            m.finish(False, "stopped on request")
+            m.finish(False, "stopped on request", self._hold)
             return True
 
     def move_tcp(self, X_task_tcp, speed_mps: float, timeout_s: float = 30.0) -> tuple:
         """Move along a straight line, stepping the simulation here; (success, message)."""
+        return self.travel(X_task_tcp, speed_mps, timeout_s).result
+
+    def travel(self, X_task_tcp, speed_mps: float, timeout_s: float = 30.0) -> Motion:
+        """`move_tcp`, returning the finished Motion (how far short, whether by contact)."""
         m = self.start_move(X_task_tcp, speed_mps)
         with self.lock:
             t_end = self.time_s + timeout_s
@@ -239,8 +243,8 @@ class SimWorld:
         if not m.done.is_set():
             with self.lock:
                 self._hold = self.tcp_pose()
-                m.finish(False, f"did not finish within {timeout_s} s of simulated time")
-        return m.result
+                m.finish(False, f"did not finish within {timeout_s} s of simulated time", self._hold)
+        return m
 
     def hand_contact_force_n(self) -> np.ndarray:
         """Net contact force [N] on the hand from everything else (task frame): a wrist
