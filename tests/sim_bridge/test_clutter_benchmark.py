@@ -230,6 +230,16 @@ def test_bad_mesh_dir_is_one_clear_error(tmp_path, capsys):
     assert code == 2 and "does not exist" in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize("bad", ["-0.01", "nan"])
+def test_a_bad_guard_distance_is_one_clear_error(tmp_path, capsys, bad):
+    save_test_model(tmp_path / "m.pt")
+    code = cb.main(["--model", f"x={tmp_path}/m.pt", "--methods", "", "--out", str(tmp_path / "o"),
+                    "--close-on-contact-within-m", bad])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "--close-on-contact-within-m" in err, err
+    assert not (tmp_path / "o").exists()  # nothing started
+
+
 def test_missing_model_is_skipped_with_a_note(tmp_path):
     notes = []
     save_test_model(tmp_path / "gravgrasp.pt")
