@@ -326,10 +326,11 @@ class GraspExecutor:
             # Open before backing out: a thin pinch the check cannot tell from an empty
             # hand must not be carried away while the answer says "nothing".
             raise self._back_out(gripper, poses, ResultCode.NO_OBJECT,
-                                 f"the grasp missed the object: {verdict.reason}", open_first=True)
+                                 f"the grasp missed the object: {verdict.reason}{guarded}", open_first=True)
         try:
             self._move("lift", poses["lift"], lim.approach_speed_mps)
         except Abort as abort:
+            abort.outcome.message += guarded
             raise self._backed_out(abort, gripper, poses, open_first=True) from None
         after = self._after_lift(gripper)
         verdict = self._judge(gripper, after)
@@ -338,6 +339,7 @@ class GraspExecutor:
         return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, {verdict.reason}{guarded}")
 
     CONTACT_BACKOFF_M = 0.001  # off the surface the contact stop pressed on, before closing
+    CLOSED_SHORT = "mm short of the grasp pose"  # in every outcome after a guarded close
 
     def _close_short(self, motion: ArmMotion, poses) -> tuple[dict, str]:
         """The guarded approach: the arm stopped on the way to the grasp. A contact stop at
@@ -359,7 +361,7 @@ class GraspExecutor:
         except Abort as refusal:
             raise Abort(ResultCode.UNREACHABLE, f"{why}; closing there: {refusal.outcome.message}") from None
         self._move("backed-off grasp", closing["grasp"], self.limits.approach_speed_mps)
-        note = (f"; closed {back_m * 1e3:.1f} mm short of the grasp pose, backed off where the arm's contact "
+        note = (f"; closed {back_m * 1e3:.1f} {self.CLOSED_SHORT}, backed off where the arm's contact "
                 f"stop halted the approach (close_on_contact_within_m {within * 1e3:.0f} mm)")
         return closing, note
 

@@ -260,6 +260,15 @@ def test_a_guarded_approach_closes_where_contact_stopped_it(gripper_port):
     assert np.allclose(arm.targets[3][0][:3, :3], arm.targets[2][0][:3, :3])
 
 
+def test_a_guarded_close_on_nothing_says_where_it_closed(gripper_port, fingers):
+    fingers.size_m = None
+    ex, arm = make_executor(gripper_port, close_on_contact_within_m=0.01)
+    short_approach(arm, 0.004)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.NO_OBJECT, outcome.message
+    assert ge.GraspExecutor.CLOSED_SHORT in outcome.message and outcome.message.endswith("backed out to the pre-grasp")
+
+
 @pytest.mark.parametrize("left_m, by_contact", [(0.012, True), (0.004, False), (float("nan"), True)])
 def test_a_guarded_approach_backs_out_when_too_short_or_not_by_contact(gripper_port, left_m, by_contact):
     """Farther short than the limit, stopped for another reason, or how far unknown: back

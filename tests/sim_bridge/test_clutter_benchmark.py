@@ -180,6 +180,19 @@ def test_a_motion_stopped_by_contact_is_told_apart_by_where_and_round_ends_are_p
     assert "| ours | 1.5 | 1 | 1 |" in ends and "| binary | 1.5 | 0 | 1 |" in ends
 
 
+def test_guarded_closes_are_tabulated_by_how_they_ended():
+    short = "; closed 5.0 mm short of the grasp pose, backed off where the arm's contact stop halted the approach"
+    rounds = [{"method": "ours", "mass_kg": 1.5, "attempts": [
+        {"outcome": "success", "success": True, "reason": f"lifted 0.15 m and held{short}"},
+        {"outcome": "dropped", "success": False, "reason": f"the object slipped out during the lift{short}"},
+        {"outcome": "no_object", "success": False, "reason": f"the grasp missed the object: empty{short}"},
+        {"outcome": "success", "success": True, "reason": "lifted 0.15 m and held"}]}]
+    lines = report.guarded_lines(rounds, {"ours": [1.5], "binary": [1.5]}, 0.01)
+    assert "at most 10 mm short" in lines[0]
+    assert "| method | weight [kg] | success | dropped | no_object |" in lines
+    assert "| ours | 1.5 | 1 | 1 | 1 |" in lines and not any(line.startswith("| binary") for line in lines)
+
+
 def test_success_rates():
     assert clearing.success_rates(2, 4, 5) == (0.5, 0.4)
     assert all(math.isnan(v) for v in clearing.success_rates(0, 0, 0))

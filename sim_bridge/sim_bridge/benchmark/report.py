@@ -12,6 +12,7 @@ import os
 import numpy as np
 
 from gravgrasp_detector import atomic_files
+from gravgrasp_detector.grasp_execution import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
 from .clearing import success_rates
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, weight_key
@@ -129,6 +130,8 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     lines += ["", *comparison_lines(comparisons)]
     lines += ["", *outcome_lines(rounds, plan)]
     lines += ["", *mode_lines(rounds, plan)]
+    if protocol.close_on_contact_within_m > 0:
+        lines += ["", *guarded_lines(rounds, plan, protocol.close_on_contact_within_m)]
     lines += ["", *end_lines(rounds, plan), ""]
     lines.append(f"Excluded objects ({len(excluded)}): " + (", ".join(
         f"{e['name']} ({e.get('min_width_mm', '?')} mm)" if "min_width_mm" in e else f"{e['name']} ({e['reason']})"
@@ -177,6 +180,17 @@ def outcome_lines(rounds, plan) -> list:
     counts = _tally(rounds, lambda r: [outcome_class(a) for a in r["attempts"]])
     outcomes = ["success", *sorted({o for row in counts.values() for o in row} - {"success"})]
     return ["Outcomes of the attempts:", "", *_count_table(counts, outcomes, plan)]
+
+
+def guarded_lines(rounds, plan, within_m) -> list:
+    """Markdown table: the attempts whose approach the contact stop halted within
+    `within_m` of the grasp, closed there by the guarded approach, by how they ended."""
+    def closed_short(r):
+        return [outcome_class(a) for a in r["attempts"] if GraspExecutor.CLOSED_SHORT in a.get("reason", "")]
+    counts = _tally(rounds, closed_short)
+    outcomes = ["success", *sorted({o for row in counts.values() for o in row} - {"success"})]
+    return [f"Closed where the arm's contact stop halted the approach, at most {within_m * 1e3:g} mm short "
+            "(the guarded approach), by how they ended:", "", *_count_table(counts, outcomes, plan)]
 
 
 def end_lines(rounds, plan) -> list:
