@@ -16,21 +16,37 @@ and a rotation vector in radians, in the robot's base frame):
     tcp_in_flange  the TCP in the tool flange frame, set on the controller with setTcp
                    when connecting (2F-85: 0.1558 m out along the flange z)
 
-What happens to a request, in order; nothing moves until every check passed:
+What happens to a request, in order; nothing moves until every check passed. The
+robot's state comes before any question about the pose: ur_rtde answers
+isPoseWithinSafetyLimits false whenever its command cannot reach the control script
+(protective stop, emergency stop, script stopped), which would name the wrong cause.
 
+    0. a motion while the emergency stop is latched                    refused (until arm(True))
     1. the TCP target lies inside the protective box (task frame)     refused otherwise
     2. speed: 0 means the default; above max_speed_mps it is capped
     3. connected (else one reconnect attempt)                          ConnectionLost
-    4. robot powered and running, safety mode normal or reduced, the
-       RTDE control script running, speed slider above 1 %            refused otherwise
-    5. the controller says the pose is within its safety limits and
+    4. safety mode normal or reduced (protective stop, emergency
+       stop, safeguard stop, violation, fault named with what to do)   refused otherwise
+    5. robot mode RUNNING (powered, brakes released)                   refused otherwise
+    6. the RTDE control script runs; if it ended (a cleared protective
+       or emergency stop, the watchdog, a program on the pendant) it is
+       re-uploaded, the TCP set again, and one line logged              refused if that fails
+    7. speed slider above 1 %                                          refused otherwise
+    8. the controller says the pose is within its safety limits and
        has an inverse-kinematics solution                              refused otherwise
-    6. moveL (asynchronous), then poll: stop requested -> stopL; protective stop,
-       lost link, or no end within the expected time (+ margin, scaled by the
-       speed slider) -> stopL and fail; contact: the TCP force's magnitude risen by
-       more than contact_force_limit_n since the motion began -> stopL and fail,
-       "stopped by contact" (the sim stand-in's rule and words); at the end the actual
-       TCP must be within position/orientation tolerance of the target.
+    9. setWatchdog(1 / watchdog_period_s), moveL (asynchronous), then poll: stop
+       requested or the emergency stop latched -> stopL; protective stop, lost link,
+       or no end within the expected time (+ margin, scaled by the speed slider) ->
+       stopL and fail; contact: the TCP force's magnitude risen by more than
+       contact_force_limit_n since the motion began -> stopL and fail, "stopped by
+       contact" (the sim stand-in's rule and words); at the end the actual TCP must be
+       within position/orientation tolerance of the target.
+
+Fail-safe: once a watchdog is set, this connection's kick loop sends kickWatchdog every
+poll_period_s. A lost link (cable, a hung process) stops the kicks, and the controller
+stops the control script, and with it the arm, within watchdog_period_s. Nothing is
+kicked while the script does not run (a refused kick ends the kicks until the next
+setWatchdog): ur_rtde would print an error for every one.
 
 Why the contact stop counts the rise, not the force: the reading has a bias (payload
 settings, drift) and a motion may start under load, e.g. a lift with the closed fingers
@@ -38,9 +54,11 @@ pressing the object on the table, which the lift relieves. A bias b raises the t
 by at most 2|b| (a 60 N limit trips between 60 and 60 + 2|b| N of contact); the UR's own
 force limit (pendant, Safety > Limits) stays the hard backstop.
 
-Monitoring only: `connect()` may return (None, receive, why) when the control interface
-cannot be built (e.g. the pendant is in Local mode for jogging); then poses are read
-(flange_pose, for calibration) and every motion request raises ConnectionLost saying so.
+Monitoring only: `connect(receive)` may return (None, receive, why) when the control
+interface cannot be built (e.g. the pendant is in Local mode for jogging); then poses are
+read (flange_pose, for calibration) and every motion request is answered with the robot's
+state or raises ConnectionLost saying so. Retrying passes the live receive interface back
+to `connect`, so flange_pose has no gaps while the control interface is retried.
 
 Never hang: every RTDE call runs on this connection's own thread and is waited on for
 at most `call_timeout_s` (`connect_timeout_s` for connecting); no answer, an exception,
@@ -59,8 +77,8 @@ from typing import Callable
 import numpy as np
 
 from .ur_arm_settings import URArmSettings
-from .ur_controller import (ROBOT_MODE_RUNNING, ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread,
-                            matrix_to_ur_pose, pose_error, ur_pose_to_matrix)
+from .ur_controller import (ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread, matrix_to_ur_pose,
+                            pose_error, state_refusal, ur_pose_to_matrix)
 
 
 class URArmError(Exception):
@@ -104,6 +122,9 @@ class URArm:
         self._moving = threading.Event()
         self.last_error = "not connected yet"
         self.monitor_only = ""   # why only the receive interface is connected ('' = both or none)
+        self.latched = ""        # why motions are refused until arm(True) ('' = not latched)
+        self._kicking = False    # a watchdog is set on the controller: the kick loop kicks it
+        self._stop_cause = ""    # the last stop seen (safety mode), for the log line on recovery
 
     # -- connection -----------------------------------------------------------------
 
@@ -126,10 +147,12 @@ class URArm:
         """(Re)build the interfaces and set the TCP (and payload). Returns a status line;
         raises ConnectionLost saying why it failed."""
         with self._link_lock:
+            # Watching only: keep the live receive interface, so flange_pose has no gap.
+            keep = self._receive if self._control is None else None
             self._drop_locked("reconnecting")
             calls = CallThread()
             try:
-                got = self._wait(calls.submit(self._connect), self.settings.connect_timeout_s,
+                got = self._wait(calls.submit(self._connect, keep), self.settings.connect_timeout_s,
                                  "connecting to the controller")
             except ConnectionLost:
                 calls.close()
@@ -141,14 +164,9 @@ class URArm:
             status = self.status_line()
             self.last_error = f"monitoring only, the control interface is not connected ({self.monitor_only})"
             return f"{status}; {self.last_error}"
+        threading.Thread(target=self._kick_loop, args=(calls, control), name="rtde-watchdog", daemon=True).start()
         try:
-            tcp = [float(v) for v in self.settings.tcp_in_flange]
-            if not self._rpc(control.setTcp, tcp):
-                raise self._lost("the controller refused setTcp (is the RTDE control script running?)")
-            if self.settings.payload_kg > 0:
-                if not self._rpc(control.setPayload, float(self.settings.payload_kg),
-                                 [float(v) for v in self.settings.payload_cog_m]):
-                    raise self._lost("the controller refused setPayload")
+            self._configure(control)
             status = self.status_line()
         except ConnectionLost as e:
             self.last_error = str(e)
@@ -156,16 +174,73 @@ class URArm:
         self.last_error = ""
         return status
 
+    def _configure(self, control):
+        """Set the TCP (and payload): at every connect and every start of the control script,
+        whose set_tcp lasts only as long as the script runs."""
+        tcp = [float(v) for v in self.settings.tcp_in_flange]
+        if not self._rpc(control.setTcp, tcp):
+            raise self._lost("the controller refused setTcp (is the RTDE control script running?)")
+        if self.settings.payload_kg > 0:
+            if not self._rpc(control.setPayload, float(self.settings.payload_kg),
+                             [float(v) for v in self.settings.payload_cog_m]):
+                raise self._lost("the controller refused setPayload")
+
     def keep_connected(self) -> str | None:
-        """Reconnect if the link is down and no request is running (the node calls this
-        periodically). Returns the status line after a reconnect, None if nothing was
-        done; raises ConnectionLost if reconnecting failed."""
-        if self.connected or not self._motion_lock.acquire(blocking=False):
+        """Reconnect if the link is down, or restart the control script once a stop that
+        ended it is cleared, while no request runs (the node calls this periodically).
+        Returns the status line after a reconnect, None otherwise (a restart logs itself);
+        raises ConnectionLost if reconnecting failed."""
+        if not self._motion_lock.acquire(blocking=False):
             return None
         try:
-            return self.connect()
+            if not self.connected:
+                return self.connect()
+            control, receive = self._control, self._receive
+            if state_refusal(self._rpc(receive.getRobotMode), self._rpc(receive.getSafetyMode)) is None \
+                    and not self._rpc(control.isProgramRunning):
+                self._restore_control(control)  # logs its one line
+            return None
         finally:
             self._motion_lock.release()
+
+    def _restore_control(self, control):
+        """Re-upload ur_rtde's control script (it ended with a protective or emergency stop,
+        the watchdog, or a program started on the pendant), wait until it runs, set the TCP
+        again, and say so in one line. Falls back to a full reconnect. Raises ConnectionLost."""
+        after = f" after {self._stop_cause}" if self._stop_cause else ""
+        self._kicking = False
+        if self._rpc(control.reuploadScript):
+            deadline = self._clock() + self.settings.connect_timeout_s
+            while self._clock() < deadline:
+                if self._rpc(control.isProgramRunning):
+                    self._configure(control)
+                    self._log(f"control restored{after}: the RTDE control script had ended; re-uploaded it "
+                              "and set the TCP again")
+                    self._stop_cause = ""
+                    return
+                time.sleep(self.settings.poll_period_s)
+        with self._link_lock:
+            self._drop_locked("the control script did not restart")
+        self.connect()  # ur_rtde's constructor uploads the script and waits for it
+        if not self.connected:
+            raise ConnectionLost(self.last_error)
+        self._log(f"control restored{after}: the RTDE control script had ended and did not restart on "
+                  "reuploadScript; reconnected")
+        self._stop_cause = ""
+
+    def _kick_loop(self, calls, control):
+        """This connection's watchdog kicks, one in flight at a time, never waited on: a
+        hung link stops them, which is the point."""
+        pending = None
+        while self._calls is calls:
+            time.sleep(self.settings.poll_period_s)
+            if not self._kicking or (pending is not None and not pending.done()):
+                continue
+            if pending is not None and pending.exception() is None and pending.result() is False:
+                self._kicking = False  # the script does not run: nothing to kick until setWatchdog
+                pending = None
+                continue
+            pending = calls.submit(control.kickWatchdog)
 
     def close(self):
         with self._link_lock:
@@ -184,6 +259,7 @@ class URArm:
         if self._calls is not None:
             self._calls.close()
         self._control = self._receive = self._calls = None
+        self._kicking = False
         self.monitor_only = ""
         self.last_error = why
 
@@ -212,14 +288,13 @@ class URArm:
             raise self._lost(str(e)) from None
 
     def _ensure_connected(self):
+        """(control, receive); control is None while only watching. Raises ConnectionLost."""
         if self._control is None:
             self._log(f"not connected ({self.last_error}): connecting")
             self.connect()
         control, receive = self._control, self._receive
-        if control is None and receive is not None:
-            raise ConnectionLost(f"the RTDE control interface is not connected ({self.monitor_only}): switch the "
-                                 "pendant to Remote Control (ur_arm retries), until then it only watches the arm")
-        if control is None or not (self._rpc(control.isConnected) and self._rpc(receive.isConnected)):
+        links = [i for i in (control, receive) if i is not None]
+        if not links or not all(self._rpc(i.isConnected) for i in links):
             raise self._lost("the RTDE connection reports itself lost (cable, controller restart, or another client)")
         return control, receive
 
@@ -236,20 +311,24 @@ class URArm:
                 f"speed slider {100 * slider:.0f} %")
 
     def _refusal_for_state(self, control, receive) -> str | None:
-        """Why the robot cannot move now, said so a person at the pendant can fix it."""
-        robot = self._rpc(receive.getRobotMode)
-        if robot != ROBOT_MODE_RUNNING:
-            return (f"robot mode is {ROBOT_MODES.get(robot, robot)}, not RUNNING: power the arm on and "
-                    "release the brakes on the teach pendant")
+        """Why the robot cannot move now, said so a person at the pendant can fix it (checks
+        4-7); restarts the control script when only that is missing. Raises ConnectionLost."""
         safety = self._rpc(receive.getSafetyMode)
-        if safety not in SAFETY_MODES_THAT_MOVE:
-            name = SAFETY_MODES.get(safety, safety)
-            if safety == 3:
-                return "the robot is in PROTECTIVE_STOP: find what it hit, then unlock it on the teach pendant"
-            return f"safety mode is {name}: clear it on the teach pendant (emergency stop released, safeguards closed)"
+        refusal = state_refusal(self._rpc(receive.getRobotMode), safety)
+        if refusal:
+            if safety not in SAFETY_MODES_THAT_MOVE:
+                self._stop_cause = f"a {SAFETY_MODES.get(safety, safety)}"
+            return refusal
+        if control is None:
+            raise ConnectionLost(f"the RTDE control interface is not connected ({self.monitor_only}): switch the "
+                                 "pendant to Remote Control (ur_arm retries), until then it only watches the arm")
         if not self._rpc(control.isProgramRunning):
-            raise self._lost("the RTDE control script is not running on the controller (a program was started "
-                             "or stopped on the pendant, or the robot left remote control)")
+            try:
+                self._restore_control(control)
+            except ConnectionLost as e:
+                return (f"the RTDE control script is not running and could not be restarted ({e}): stop any program "
+                        "on the teach pendant and check that it is in Remote Control")
+            control = self._control
         slider = self._rpc(receive.getTargetSpeedFraction)
         if slider < 0.01:
             return "the speed slider on the teach pendant is at 0 %: the arm would not move; raise it"
@@ -281,11 +360,15 @@ class URArm:
         return float(speed_mps), ""
 
     def check(self, X_task_tcp) -> MoveResult:
-        """Checks 1-5 without moving: refusals come back as reachable=False."""
+        """Checks 1-8 without moving: refusals come back as reachable=False."""
         refusal = self._box_refusal(X_task_tcp)
         if refusal:
             return MoveResult(False, False, f"refused: {refusal}")
         control, receive = self._ensure_connected()
+        refusal = self._refusal_for_state(control, receive)
+        if refusal:
+            return MoveResult(False, False, f"refused: {refusal}; nothing moved")
+        control = self._control
         pose = self.to_base(X_task_tcp)
         if not self._rpc(control.isPoseWithinSafetyLimits, pose):
             return MoveResult(False, False, "refused: the controller says the TCP pose "
@@ -304,6 +387,9 @@ class URArm:
         Raises ConnectionLost when the link fails (before or during the motion) and
         ValueError for a bad speed."""
         speed, speed_note = self.speed_for(speed_mps)
+        if self.latched and not check_only:
+            return MoveResult(False, False, f"refused: {self.latched} is latched: nothing moves until ~/arm is "
+                              "called with data: true (after making the cell safe); nothing moved")
         with self._request_lock:
             if self._request_active:
                 return MoveResult(False, False, "refused: another motion is running on this arm")
@@ -318,9 +404,6 @@ class URArm:
             if not checked.reachable or check_only:
                 return checked
             control, receive = self._control, self._receive
-            refusal = self._refusal_for_state(control, receive)
-            if refusal:
-                return MoveResult(False, False, f"refused: {refusal}; nothing moved", checked.joint_positions)
             return self._run_motion(control, receive, self.to_base(X_task_tcp), speed, speed_note,
                                     checked.joint_positions)
         finally:
@@ -345,7 +428,12 @@ class URArm:
         force_start_n = self._tcp_force_n(receive) if limit_n > 0 else 0.0
         self._moving.set()
         if self._stop.is_set():
-            return MoveResult(True, False, "stopped before the motion started (stop_motion)", joints)
+            return MoveResult(True, False, f"stopped before the motion started ({self._stopper()})", joints)
+        # The watchdog first: no motion runs without it (removed whenever the script ends).
+        if not self._rpc(control.setWatchdog, 1.0 / s.watchdog_period_s):
+            why = self._refusal_for_state(control, receive) or "the control script did not accept setWatchdog"
+            return MoveResult(False, False, f"refused: {why}; nothing moved", joints)
+        self._kicking = True
         if not self._rpc(control.moveL, target, float(speed), float(s.acceleration_mps2), True):
             why = self._refusal_for_state(control, receive)
             return MoveResult(True, False, f"the controller did not start the motion{': ' + why if why else ''}", joints)
@@ -354,15 +442,16 @@ class URArm:
             if self._stop.is_set():
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
                 where, left_m = self._where(receive, target)
-                return MoveResult(True, False, f"motion stopped by stop_motion {where}", joints, False, left_m)
+                return MoveResult(True, False, f"motion stopped by {self._stopper()} {where}", joints, False, left_m)
             if not (self._rpc(control.isConnected) and self._rpc(receive.isConnected)):
-                raise self._lost("the RTDE connection was lost during a motion: the arm's state is unknown, "
-                                 "check it on the teach pendant")
+                raise self._lost("the RTDE connection was lost during a motion: the controller's watchdog stops the "
+                                 f"arm within {s.watchdog_period_s:g} s of the last kick; check it on the teach pendant")
             safety = self._rpc(receive.getSafetyMode)
             if safety not in SAFETY_MODES_THAT_MOVE:
+                self._stop_cause = f"a {SAFETY_MODES.get(safety, safety)}"
                 where, left_m = self._where(receive, target)
-                return MoveResult(True, False, f"{SAFETY_MODES.get(safety, safety)} during the motion "
-                                  f"{where}: clear it on the teach pendant", joints, False, left_m)
+                return MoveResult(True, False, f"{SAFETY_MODES.get(safety, safety)} during the motion {where}: "
+                                  f"{state_refusal(7, safety)}", joints, False, left_m)
             if limit_n > 0:
                 force_n = self._tcp_force_n(receive)
                 if force_n - force_start_n > limit_n:
@@ -381,9 +470,14 @@ class URArm:
                                   f"(speed slider {100 * slider:.0f} %); stopped {where}", joints, False, left_m)
         if self._stop.is_set():  # stop() halts the arm itself: the end seen may be its stopL
             where, left_m = self._where(receive, target)
-            return MoveResult(True, False, f"motion stopped by stop_motion {where}", joints, False, left_m)
+            return MoveResult(True, False, f"motion stopped by {self._stopper()} {where}", joints, False, left_m)
         actual = self._rpc(receive.getActualTCPPose)
         dp, da = pose_error(actual, target)
+        if (dp > s.position_tolerance_m or da > s.orientation_tolerance_deg) and not self._rpc(control.isProgramRunning):
+            self._stop_cause = "the control script ended during a motion"
+            return MoveResult(True, False, f"the RTDE control script ended during the motion {dp * 1000:.0f} mm before "
+                              f"the target (the watchdog heard no kick for {s.watchdog_period_s:g} s, or a program was "
+                              "started or stopped on the pendant); ur_arm restarts it", joints, False, dp)
         if dp > s.position_tolerance_m or da > s.orientation_tolerance_deg:
             return MoveResult(True, False, f"motion ended {dp * 1000:.1f} mm / {da:.1f} deg from the target "
                               f"(tolerance {s.position_tolerance_m * 1000:g} mm / {s.orientation_tolerance_deg:g} deg)",
@@ -408,6 +502,23 @@ class URArm:
         """(words, distance [m]): where the TCP stopped, from the target."""
         dp, _ = pose_error(self._rpc(receive.getActualTCPPose), target)
         return f"{dp * 1000:.0f} mm before the target", float(dp)
+
+    def _stopper(self) -> str:
+        return self.latched or "stop_motion"
+
+    def latch(self, why: str) -> bool:
+        """The emergency stop: halt the running motion and refuse every motion until
+        arm(True). True if a motion was running."""
+        self.latched = why
+        return self.stop()
+
+    def arm(self, enable: bool) -> str:
+        """arm(True) clears the latch; arm(False) latches without an emergency."""
+        if not enable:
+            self.latch("a disarm (~/arm false)")
+            return "disarmed: every motion is refused until ~/arm is called with data: true"
+        was, self.latched = self.latched, ""
+        return f"armed: motion allowed{' (cleared: ' + was + ')' if was else ''}"
 
     def stop(self) -> bool:
         """Halt the running motion (stopL). True if a motion was running; its move()

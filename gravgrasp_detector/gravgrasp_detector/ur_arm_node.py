@@ -8,14 +8,18 @@ Serves the same interface as the Drake sim bridge, so the executor cannot tell t
 | --- | --- | --- |
 | `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion (moveL) to a pose in `frame_id`; `check_only` asks the controller (safety limits, IK) without moving |
 | `stop_motion` | std_srvs/Trigger | halts the running motion at once (stopL; its `move_to_pose` answers `success: false`) |
-| `~/reconnect` | std_srvs/Trigger | drop the RTDE connection and build it again |
+| `~/reconnect` | std_srvs/Trigger | drop the RTDE connection and build it again (never needed after a cleared stop: ur_arm restarts its control script itself) |
+| `emergency_stop` (sub) | std_msgs/Bool | `true` halts the running motion (stopL) and latches: every motion is refused until `~/arm` |
+| `~/arm` | std_srvs/SetBool | `true` clears the latch (motion allowed again), `false` latches it |
 | `flange_pose` | geometry_msgs/PoseStamped | the tool flange in `frame_id`, at `state_rate_hz` (calibrate_camera's robot poses) |
 | `camera_pose` | geometry_msgs/PoseStamped | only with `camera_in_flange` set (a camera on the wrist): its optical frame in `frame_id`, for the tsdf node; sensor-data QoS |
 
 A thin adapter around `ur_arm.URArm` (frames, limits, stop, timeouts; see there) over
 ur_rtde's RTDEControlInterface/RTDEReceiveInterface. The node keeps serving while the
-robot is unreachable: requests are answered with why, and it reconnects every
-`reconnect_period_s`. Once serving it logs ``ur_arm ready``.
+robot is unreachable: requests are answered with why, and it reconnects (or restarts the
+control script after a cleared protective or emergency stop) every `reconnect_period_s`.
+Once serving it logs ``ur_arm ready``. The failure paths, each with its test:
+gravgrasp_detector/doc/arm-adapter.md.
 """
 from __future__ import annotations
 
@@ -29,7 +33,8 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from geometry_msgs.msg import PoseStamped
-from std_srvs.srv import Trigger
+from std_msgs.msg import Bool
+from std_srvs.srv import SetBool, Trigger
 
 from .poses import PoseError, matrix_from_pose
 from .ros_interface import described, float_range, matrix_from_pose_msg, pose_stamped_from_matrix, run_node
@@ -41,17 +46,19 @@ UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > 
 
 
 def rtde_connect(robot_ip: str, frequency_hz: float):
-    """connect() for URArm over the real ur_rtde."""
-    def connect():
+    """connect(receive) for URArm over the real ur_rtde; a live receive interface passed in
+    (while only watching) is kept, so flange_pose has no gap."""
+    def connect(receive=None):
         try:  # lazy: ur_rtde is optional (only a real arm needs it; the core and tests never do)
             import rtde_control
             import rtde_receive
         except ImportError as e:
             raise RuntimeError(f"ur_rtde is not installed ({e}): pip install ur-rtde==1.6.5") from None
-        receive = rtde_receive.RTDEReceiveInterface(robot_ip, frequency_hz)
+        if receive is None or not receive.isConnected():
+            receive = rtde_receive.RTDEReceiveInterface(robot_ip, frequency_hz)
         try:
             control = rtde_control.RTDEControlInterface(robot_ip, frequency_hz)
-        except RuntimeError as e:  # e.g. the pendant in Local mode: watch the arm, do not move it
+        except RuntimeError as e:  # the pendant in Local mode, a stopped arm: watch it, do not move it
             return None, receive, f"{e}".strip()
         return control, receive
     return connect
@@ -92,6 +99,9 @@ class URArmNode(Node):
             orientation_tolerance_deg=p("orientation_tolerance_deg", defaults.orientation_tolerance_deg, _float("arrived = TCP this well aligned, deg", 0.01, 30.0)),
             payload_kg=p("payload_kg", 0.0, _float("> 0: setPayload on connect (2F-85: 0.925 kg); 0 = keep the pendant's payload", 0.0, 20.0)),
             payload_cog_m=tuple(p("payload_cog_m", [0.0, 0.0, 0.0], _text("payload centre of gravity in the flange frame [x, y, z], m"))),
+            watchdog_period_s=p("watchdog_period_s", defaults.watchdog_period_s, _float(
+                "RTDE watchdog: the controller stops the arm when it hears no kick for this long (a lost link), s",
+                0.05, 5.0)),
             contact_force_limit_n=p("contact_force_limit_n", defaults.contact_force_limit_n, _float(
                 "stop a motion when the TCP force's magnitude rises this much above its value when the motion "
                 "began, N (the sim's max_contact_force_n); 0 = off, leaving only the robot's own force limit", 0.0, 500.0)),
@@ -124,6 +134,8 @@ class URArmNode(Node):
         self.create_service(MoveToPose, "move_to_pose", self._guarded(self._on_move), callback_group=services)
         self.create_service(Trigger, "stop_motion", self._guarded(self._on_stop), callback_group=services)
         self.create_service(Trigger, "~/reconnect", self._guarded(self._on_reconnect), callback_group=services)
+        self.create_service(SetBool, "~/arm", self._guarded(self._on_arm), callback_group=services)
+        self.create_subscription(Bool, "emergency_stop", self._on_estop, 10, callback_group=services)
         self.create_timer(self.reconnect_period_s, self._keep_connected, callback_group=MutuallyExclusiveCallbackGroup())
         self.pub_flange = self.create_publisher(PoseStamped, "flange_pose", 10)
         self.pub_camera = (self.create_publisher(PoseStamped, "camera_pose", qos_profile_sensor_data)
@@ -219,6 +231,18 @@ class URArmNode(Node):
     def _on_stop(self, request, response):
         response.success = self.arm.stop()
         response.message = "motion stopped" if response.success else "no motion was running"
+        return response
+
+    def _on_estop(self, msg):
+        if msg.data:
+            halted = self.arm.latch("the emergency stop (emergency_stop topic)")
+            self.get_logger().error("EMERGENCY STOP: motions refused until ~/arm is called with data: true; "
+                                    + ("the running motion was halted (stopL)" if halted else "no motion was running"))
+
+    def _on_arm(self, request, response):
+        response.message = self.arm.arm(bool(request.data))
+        response.success = True
+        self.get_logger().info(response.message)
         return response
 
     def _on_reconnect(self, request, response):

@@ -1,6 +1,6 @@
 """What a UR arm adapter (`ur_arm.URArm`) is set up with: where the robot's base sits in
 the task frame, the TCP in the flange frame, the protective TCP box, speeds,
-accelerations, timeouts, arrival tolerances and the contact stop (`URArmSettings`), and the base pose
+accelerations, timeouts, the watchdog, arrival tolerances and the contact stop (`URArmSettings`), and the base pose
 parameter `[x, y, z, yaw]` as a transform (`xyz_yaw_to_matrix`). No rclpy, no ur_rtde.
 """
 from __future__ import annotations
@@ -29,7 +29,11 @@ class URArmSettings:
     motion_timeout_margin_s: float = 5.0  # on top of the expected motion time
     position_tolerance_m: float = 0.002   # arrived = this close to the target ...
     orientation_tolerance_deg: float = 1.0  # ... and this well aligned
-    poll_period_s: float = 0.02
+    poll_period_s: float = 0.02          # motion polling, and the watchdog kicks
+    # RTDE watchdog (setWatchdog before every motion, kicked every poll_period_s): when the
+    # controller hears nothing for this long, it stops ur_rtde's control script and with
+    # it the motion. 0.2 s is 1 cm at 0.05 m/s; ten kicks fit in it.
+    watchdog_period_s: float = 0.2
     payload_kg: float = 0.0              # > 0: setPayload(payload_kg, payload_cog_m) on connect
     payload_cog_m: tuple = (0.0, 0.0, 0.0)
     # A motion stops when the magnitude of the controller's TCP force (getActualTCPForce)
@@ -49,12 +53,15 @@ class URArmSettings:
             raise ValueError(f"protective box: workspace_min_m {list(lo)} must be below workspace_max_m {list(hi)} on every axis (3 numbers each, m)")
         for name in ("default_speed_mps", "max_speed_mps", "acceleration_mps2", "stop_deceleration_mps2",
                      "call_timeout_s", "connect_timeout_s", "position_tolerance_m", "orientation_tolerance_deg",
-                     "poll_period_s"):
+                     "poll_period_s", "watchdog_period_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be > 0, got {value}")
         if self.default_speed_mps > self.max_speed_mps:
             raise ValueError(f"default_speed_mps {self.default_speed_mps} exceeds max_speed_mps {self.max_speed_mps}")
+        if self.watchdog_period_s < 3 * self.poll_period_s:
+            raise ValueError(f"watchdog_period_s {self.watchdog_period_s} must be at least 3 poll periods "
+                             f"({3 * self.poll_period_s:g} s): the watchdog would trip between kicks")
         if self.motion_timeout_margin_s < 0:
             raise ValueError("motion_timeout_margin_s must be >= 0")
         if not (math.isfinite(self.contact_force_limit_n) and self.contact_force_limit_n >= 0):

@@ -22,6 +22,45 @@ SAFETY_MODES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 
                 10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
                 13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
 SAFETY_MODES_THAT_MOVE = (1, 2)  # NORMAL, REDUCED (reduced limits still allow motion)
+PROTECTIVE_STOP = 3
+
+# What a person at the pendant does about each stop: the safety mode is the cause (an
+# emergency stop also powers the arm off, so the robot mode alone would hide it).
+_SAFETY_ACTIONS = {
+    3: "protective stop: find what the arm hit or why it stopped (the pendant's log), unlock it on the teach "
+       "pendant, then send the request again (ur_arm restarts its control script by itself)",
+    4: "safety RECOVERY mode: the arm is beyond a safety limit; jog it back inside the limits on the teach pendant",
+    5: "safeguard stop: a safeguard input is open (door, light curtain); close it and reset it on the teach pendant",
+    6: "system emergency stop: make the cell safe, release the emergency stop, reset it on the teach pendant, power "
+       "the arm on and release the brakes (ur_arm restarts its control script by itself)",
+    7: "robot emergency stop: make the cell safe, release the emergency stop button, reset it on the teach pendant, "
+       "power the arm on and release the brakes (ur_arm restarts its control script by itself)",
+    8: "safety VIOLATION: the safety system found a limit or checksum violation; read the pendant's log, fix the "
+       "cause and restart the safety system as the pendant says",
+    9: "safety FAULT: the safety system reports a fault; read the pendant's log, power-cycle the controller if it says so",
+    12: "automatic-mode safeguard stop: close the safeguard and reset it on the teach pendant",
+    13: "three-position enabling stop: hold the enabling device in its middle position, or leave manual mode",
+}
+_ROBOT_ACTIONS = {
+    -1: "no controller: the controller is not running; start it", 0: "the controller is disconnected from the arm",
+    1: "confirm the safety configuration on the teach pendant", 2: "the controller is booting: wait",
+    3: "power the arm on and release the brakes on the teach pendant",
+    4: "the arm is powering on: release the brakes on the teach pendant",
+    5: "release the brakes on the teach pendant", 6: "leave backdrive mode on the teach pendant",
+    8: "the controller is updating firmware: wait",
+}
+
+
+def state_refusal(robot_mode: int, safety_mode: int) -> str | None:
+    """Why a UR in this robot and safety mode cannot move, and what a person must do; None
+    if it can. The safety cause first: an emergency stop is also a powered-off arm."""
+    if safety_mode not in SAFETY_MODES_THAT_MOVE:
+        name = SAFETY_MODES.get(safety_mode, safety_mode)
+        return f"{name}: " + _SAFETY_ACTIONS.get(safety_mode, "clear it on the teach pendant")
+    if robot_mode != ROBOT_MODE_RUNNING:
+        action = _ROBOT_ACTIONS.get(robot_mode, "make it RUNNING on the teach pendant")
+        return f"robot mode is {ROBOT_MODES.get(robot_mode, robot_mode)}, not RUNNING: {action}"
+    return None
 
 
 def matrix_to_ur_pose(X) -> list:

@@ -1,6 +1,7 @@
 """The UR arm adapter's logic (gravgrasp_detector.ur_arm) against a recording stand-in
 of ur_rtde's interfaces (tests/support/fake_rtde.py): frames, the protective box, speed
-limits, refusals before motion, stop, timeouts, a lost link and the reconnect."""
+limits, refusals before motion, stop, timeouts, a lost link and the reconnect. The
+failure paths (stops, watchdog, latch): test_ur_arm_failures.py."""
 import math
 import threading
 import time
@@ -24,14 +25,14 @@ def tcp(x, y, z, R=DOWN):
     return X
 
 
-def make_arm(ur=None, **overrides):
+def make_arm(ur=None, log=None, **overrides):
     ur = ur or FakeURController()
     # The executor's default base: 0.45 m in front of the workspace, turned 90 deg.
     # Timeouts generous enough for a loaded 2-core machine; the hang tests shorten them.
     settings = dict(X_task_base=xyz_yaw_to_matrix([0.15, -0.45, 0.0, math.pi / 2]), call_timeout_s=1.5,
                     connect_timeout_s=3.0, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2)
     settings.update(overrides)
-    arm = URArm(ur.connect, URArmSettings(**settings))
+    arm = URArm(ur.connect, URArmSettings(**settings), log=log)
     # Start the fake TCP where the first target of most tests is, in the base frame.
     return arm, ur
 
@@ -239,6 +240,8 @@ def test_local_mode_watches_the_arm_but_never_moves_it():
     with pytest.raises(ConnectionLost, match="switch the pendant to Remote Control"):
         arm.move(tcp(0.15, 0.15, 0.25))
     assert ur.called("moveL") == [] and ur.called("setTcp") == []
+    receive = arm._receive
+    assert "monitoring only" in arm.keep_connected() and arm._receive is receive, "a retry keeps the receive link"
     ur.control_unavailable = False
     assert "RUNNING" in arm.keep_connected() and arm.connected
 

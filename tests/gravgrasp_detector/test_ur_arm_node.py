@@ -13,6 +13,7 @@ from gravgrasp_msgs.msg import Grasp
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from fake_rtde import FakeURController
@@ -107,6 +108,40 @@ def test_lost_link_is_answered_then_the_node_reconnects(served):
     assert wait_until(lambda: ur.connects >= 2 and served["arm_node"].arm.connected, 10), "no reconnect"
     again = call(move, move_request(0.15, 0.15, 0.30, speed=0.25))
     assert again.success, again.message
+
+
+def test_emergency_stop_topic_halts_and_latches_until_armed(served):
+    ur, node = served["ur"], served["node"]
+    move = node.create_client(MoveToPose, "move_to_pose")
+    arm = node.create_client(SetBool, "ur_arm/arm")
+    estop = node.create_publisher(Bool, "emergency_stop", 10)
+    assert wait_until(lambda: estop.get_subscription_count() >= 1, 10), "ur_arm does not listen to emergency_stop"
+    results = {}
+    worker = threading.Thread(target=lambda: results.setdefault("r", call(move, move_request(0.15, 0.15, 0.45, speed=0.02))))
+    worker.start()
+    assert wait_until(lambda: len(ur.called("moveL")) == 1, 10)
+    estop.publish(Bool(data=True))
+    worker.join(10)
+    assert "motion stopped by the emergency stop" in results["r"].message, results["r"].message
+    latched = call(move, move_request(0.15, 0.15, 0.30, speed=0.25))
+    assert not latched.success and "is latched" in latched.message and len(ur.called("moveL")) == 1, latched.message
+    armed = call(arm, SetBool.Request(data=True))
+    assert armed.success and armed.message.startswith("armed"), armed.message
+    assert call(move, move_request(0.15, 0.15, 0.30, speed=0.25)).success
+
+
+def test_a_cleared_protective_stop_is_recovered_without_any_call(served):
+    ur, node = served["ur"], served["node"]
+    move = node.create_client(MoveToPose, "move_to_pose")
+    ur.protective_stop_after_s = 0.05
+    hit = call(move, move_request(0.15, 0.15, 0.40, speed=0.05))
+    assert hit.message.startswith("PROTECTIVE_STOP during the motion"), hit.message
+    ur.protective_stop_after_s = None
+    ur.clear_protective_stop()
+    # reconnect_period_s 0.2: the node's own timer restarts the control script
+    assert wait_until(lambda: ur.program_running and ur.called("reuploadScript"), 10), "control was not restored"
+    assert ur.connects == 1
+    assert call(move, move_request(0.15, 0.15, 0.30, speed=0.25)).success
 
 
 def top_down_grasp(x=0.15, y=0.15, z=0.08) -> Grasp:

@@ -1,0 +1,179 @@
+"""The UR arm adapter's failure paths (gravgrasp_detector/doc/arm-adapter.md lists them,
+one row each) against tests/support/fake_rtde.py, which answers each call as ur_rtde
+1.6.5 does in each robot and safety state: the robot's state named before any question
+about the pose, recovery from a cleared stop without ~/reconnect, the RTDE watchdog on a
+lost link, and the latched emergency stop."""
+import threading
+import time
+
+import pytest
+
+from fake_rtde import FakeControl, FakeURController
+from gravgrasp_detector.ur_arm import ConnectionLost
+from test_ur_arm import _wait, make_arm, tcp
+
+
+@pytest.mark.parametrize("state, words", [
+    (dict(safety_mode=3, program_running=False), "PROTECTIVE_STOP: protective stop: find what the arm hit"),
+    (dict(safety_mode=7, robot_mode=3, program_running=False), "ROBOT_EMERGENCY_STOP: robot emergency stop: make the cell safe"),
+    (dict(safety_mode=5), "SAFEGUARD_STOP: safeguard stop"),
+    (dict(safety_mode=8, program_running=False), "VIOLATION: safety VIOLATION"),
+    (dict(safety_mode=9, program_running=False), "FAULT: safety FAULT"),
+    (dict(robot_mode=5), "robot mode is IDLE, not RUNNING: release the brakes"),
+    (dict(speed_slider=0.0), "speed slider on the teach pendant is at 0 %"),
+])
+def test_the_robots_state_is_named_before_any_question_about_the_pose(state, words):
+    arm, ur = make_arm()
+    arm.connect()
+    for name, value in state.items():
+        setattr(ur, name, value)
+    asked = 0
+    if ur.safety_mode in (3, 7):  # what the old order answered: the safety question is false, whatever the pose
+        assert FakeControl(ur).isPoseWithinSafetyLimits([0.4, 0.0, 0.3, 3.14, 0.0, 0.0]) is False
+        asked = 1
+    for check_only in (False, True):
+        result = arm.move(tcp(0.15, 0.15, 0.20), check_only=check_only)
+        assert not result.reachable and not result.success, result
+        assert words in result.message and result.message.endswith("nothing moved"), result.message
+    assert len(ur.called("isPoseWithinSafetyLimits")) == asked and ur.called("moveL") == []
+    assert "beyond its safety limits" not in result.message
+
+
+def test_protective_stop_cleared_on_the_pendant_restores_control_by_itself():
+    lines = []
+    arm, ur = make_arm(log=lines.append)
+    ur.protective_stop_after_s = 0.1
+    hit = arm.move(tcp(0.15, 0.15, 0.30), 0.2)
+    assert not hit.success and hit.message.startswith("PROTECTIVE_STOP during the motion"), hit.message
+    assert "unlock it on the teach pendant" in hit.message
+    assert not ur.program_running, "the stand-in's control script ended with the stop"
+    ur.protective_stop_after_s = None
+    refused = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
+    assert "protective stop: find what the arm hit" in refused.message, refused.message
+    ur.clear_protective_stop()
+    assert arm.keep_connected() is None  # the node's periodic call: no request needed
+    restored = [line for line in lines if line.startswith("control restored")]
+    assert restored == ["control restored after a PROTECTIVE_STOP: the RTDE control script had ended; "
+                        "re-uploaded it and set the TCP again"], lines
+    assert ur.program_running and len(ur.called("reuploadScript")) == 1
+    assert len(ur.called("setTcp")) == 2, "the TCP lives in the script: set again"
+    again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
+    assert again.success, again.message
+    assert ur.connects == 1, "no reconnect was needed, nor a call to ~/reconnect"
+
+
+def test_emergency_stop_released_restores_control_at_the_next_request():
+    lines = []
+    arm, ur = make_arm(log=lines.append)
+    ur.emergency_stop_after_s = 0.1
+    hit = arm.move(tcp(0.15, 0.15, 0.30), 0.2)
+    assert hit.message.startswith("ROBOT_EMERGENCY_STOP during the motion"), hit.message
+    ur.emergency_stop_after_s = None
+    ur.safety_mode, ur.robot_mode = 1, 7  # released, reset, powered on, brakes released on the pendant
+    again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
+    assert again.success, again.message
+    assert [line for line in lines if line.startswith("control restored after a ROBOT_EMERGENCY_STOP")], lines
+
+
+def test_program_stopped_on_the_pendant_is_restored_not_refused():
+    lines = []
+    arm, ur = make_arm(log=lines.append)
+    arm.connect()
+    ur.program_running = False  # someone pressed stop / played another program
+    result = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
+    assert result.success, result.message
+    assert len(lines) == 1 and lines[0].startswith("control restored: the RTDE control script had ended"), lines
+
+
+def test_program_that_cannot_restart_is_refused_with_what_to_do():
+    arm, ur = make_arm(connect_timeout_s=0.3)
+    arm.connect()
+    ur.program_running = False
+    ur.control_unavailable = True  # the pendant switched to Local mode: the re-uploaded script is not run
+    result = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
+    assert not result.reachable and "could not be restarted" in result.message, result.message
+    assert "enable remote control" in result.message and ur.called("moveL") == []
+    assert arm.receiving and not arm.connected, "watching only, until Remote Control is back"
+
+
+def test_watchdog_is_set_before_every_motion_and_kicked_while_it_runs():
+    arm, ur = make_arm()
+    assert arm.move(tcp(0.15, 0.15, 0.30), 0.2).success  # ~0.5 s
+    names = [n for n, _ in ur.calls]
+    assert ur.called("setWatchdog") == [(5.0,)], "1 / watchdog_period_s (0.2 s)"
+    assert names.index("setWatchdog") < names.index("moveL")
+    kicks = names.count("kickWatchdog")
+    print(f"{kicks} kicks during a 0.5 s motion")
+    assert kicks >= 5
+    time.sleep(0.5)  # between motions the kicks go on: the script must not be stopped while idle
+    assert ur.program_running and not ur.watchdog_tripped
+    assert arm.move(tcp(0.15, 0.15, 0.20), 0.5).success
+    assert len(ur.called("setWatchdog")) == 2
+
+
+def test_link_lost_mid_motion_the_watchdog_stops_the_arm():
+    arm, ur = make_arm()
+    arm.connect()
+    ur.lose_link_after_s = 0.2
+    start_z = ur.tcp_pose[2]
+    t0 = time.monotonic()
+    with pytest.raises(ConnectionLost, match="watchdog stops the arm within 0.2 s"):
+        arm.move(tcp(0.15, 0.15, 0.50), 0.1)  # 0.3 m at 0.1 m/s: 3 s if nothing stops it
+    assert time.monotonic() - t0 < 2.5
+    assert _wait(lambda: not ur.motion_running, 1.0), "the controller went on moving"
+    travelled_m = abs(ur.tcp_pose[2] - start_z)
+    print(f"link lost after 0.2 s: the arm stopped after {travelled_m * 1000:.0f} mm of 300 mm")
+    assert ur.watchdog_tripped and not ur.program_running
+    assert travelled_m < 0.1 * (0.2 + 0.2 + 0.1), "stopped within the watchdog period (+ a poll)"
+    ur.lose_link_after_s = None
+    result = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
+    assert result.success, result.message  # fresh interfaces; their constructor uploads the script
+
+
+def test_link_lost_before_a_motion_commands_nothing():
+    arm, ur = make_arm()
+    arm.connect()
+    ur.link_up = False
+    with pytest.raises(ConnectionLost, match="reports itself lost"):
+        arm.move(tcp(0.15, 0.15, 0.25), 0.5)
+    assert ur.called("moveL") == [] and ur.called("setWatchdog") == []
+
+
+def test_emergency_stop_during_a_motion_latches_until_armed():
+    arm, ur = make_arm()
+    arm.connect()
+    results = {}
+    worker = threading.Thread(target=lambda: results.setdefault("r", arm.move(tcp(0.15, 0.15, 0.45), 0.05)))
+    worker.start()
+    assert _wait(lambda: ur._motion is not None, 2.0), "the motion did not start"
+    assert arm.latch("the emergency stop (emergency_stop topic)") is True
+    worker.join(3.0)
+    assert "motion stopped by the emergency stop (emergency_stop topic)" in results["r"].message, results["r"].message
+    assert ur.called("stopL") and not ur.motion_running
+    moves = len(ur.called("moveL"))
+    latched = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
+    assert not latched.success and "is latched: nothing moves until ~/arm" in latched.message, latched.message
+    assert len(ur.called("moveL")) == moves, "a latched request commands nothing"
+    assert arm.move(tcp(0.15, 0.15, 0.30), check_only=True).reachable, "asking without moving still answers"
+    assert arm.arm(True).startswith("armed: motion allowed (cleared: the emergency stop")
+    assert arm.move(tcp(0.15, 0.15, 0.30), 0.5).success
+
+
+def test_disarm_latches_without_a_motion():
+    arm, ur = make_arm()
+    assert arm.arm(False).startswith("disarmed")
+    assert "a disarm (~/arm false) is latched" in arm.move(tcp(0.15, 0.15, 0.30), 0.5).message
+    assert ur.calls == [], "refused before connecting"
+    arm.arm(True)
+    assert arm.move(tcp(0.15, 0.15, 0.30), 0.5).success
+
+
+def test_stopl_without_a_running_script_does_nothing_in_the_stand_in():
+    """ur_rtde's void stopL goes through sendCommand: without the script nothing is sent.
+    So the adapter cannot rely on stopL after a stop; the watchdog and the stop itself halt the arm."""
+    ur = FakeURController()
+    control, _ = ur.connect()
+    assert control.moveL([0.4, 0.0, 0.1, 3.14, 0.0, 0.0], 0.05, 0.5, True)
+    ur.program_running = False
+    control.stopL(2.0)
+    assert ur._motion is not None
