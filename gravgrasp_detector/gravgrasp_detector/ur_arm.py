@@ -78,7 +78,7 @@ import numpy as np
 
 from .ur_arm_settings import URArmSettings
 from .ur_controller import (ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread, matrix_to_ur_pose,
-                            pose_error, state_refusal, ur_pose_to_matrix)
+                            pose_error, safety_action, state_refusal, ur_pose_to_matrix)
 
 
 class URArmError(Exception):
@@ -427,7 +427,7 @@ class URArm:
         limit_n = s.contact_force_limit_n
         force_start_n = self._tcp_force_n(receive) if limit_n > 0 else 0.0
         self._moving.set()
-        if self._stop.is_set():
+        if self._stop.is_set() or self.latched:  # a latch between the request's check and here
             return MoveResult(True, False, f"stopped before the motion started ({self._stopper()})", joints)
         # The watchdog first: no motion runs without it (removed whenever the script ends).
         if not self._rpc(control.setWatchdog, 1.0 / s.watchdog_period_s):
@@ -451,7 +451,7 @@ class URArm:
                 self._stop_cause = f"a {SAFETY_MODES.get(safety, safety)}"
                 where, left_m = self._where(receive, target)
                 return MoveResult(True, False, f"{SAFETY_MODES.get(safety, safety)} during the motion {where}: "
-                                  f"{state_refusal(7, safety)}", joints, False, left_m)
+                                  f"{safety_action(safety)}", joints, False, left_m)
             if limit_n > 0:
                 force_n = self._tcp_force_n(receive)
                 if force_n - force_start_n > limit_n:

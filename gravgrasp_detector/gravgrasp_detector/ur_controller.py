@@ -51,12 +51,16 @@ _ROBOT_ACTIONS = {
 }
 
 
+def safety_action(safety_mode: int) -> str:
+    """What a person does about a safety mode that stops the arm."""
+    return _SAFETY_ACTIONS.get(safety_mode, "clear it on the teach pendant")
+
+
 def state_refusal(robot_mode: int, safety_mode: int) -> str | None:
     """Why a UR in this robot and safety mode cannot move, and what a person must do; None
     if it can. The safety cause first: an emergency stop is also a powered-off arm."""
     if safety_mode not in SAFETY_MODES_THAT_MOVE:
-        name = SAFETY_MODES.get(safety_mode, safety_mode)
-        return f"{name}: " + _SAFETY_ACTIONS.get(safety_mode, "clear it on the teach pendant")
+        return f"{SAFETY_MODES.get(safety_mode, safety_mode)}: {safety_action(safety_mode)}"
     if robot_mode != ROBOT_MODE_RUNNING:
         action = _ROBOT_ACTIONS.get(robot_mode, "make it RUNNING on the teach pendant")
         return f"robot mode is {ROBOT_MODES.get(robot_mode, robot_mode)}, not RUNNING: {action}"
