@@ -97,7 +97,8 @@ class ExecutionLimits:
     workspace_max_m: tuple = (0.35, 0.35, 0.50)
     approach_cone_deg: float = 80.0    # max angle between approach (TCP z) and gravity (down)
     max_speed_mps: float = 0.25        # arm TCP speed cap
-    approach_speed_mps: float = 0.05   # pre-grasp -> grasp
+    approach_speed_mps: float = 0.05   # pre-grasp -> grasp, and backing out
+    lift_speed_mps: float = 0.05       # grasp -> lift, with the object in the hand
     max_force_n: float = 235.0         # gripper force cap (2F-85 max)
     grip_force_n: float = 40.0         # the paper's grasp force
     grip_speed_mps: float = 0.1
@@ -328,7 +329,7 @@ class GraspExecutor:
             raise self._back_out(gripper, poses, ResultCode.NO_OBJECT,
                                  f"the grasp missed the object: {verdict.reason}{guarded}", open_first=True)
         try:
-            self._move("lift", poses["lift"], lim.approach_speed_mps)
+            self._move("lift", poses["lift"], lim.lift_speed_mps)
         except Abort as abort:
             abort.outcome.message += guarded
             raise self._backed_out(abort, gripper, poses, open_first=True) from None

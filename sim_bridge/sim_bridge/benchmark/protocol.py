@@ -68,6 +68,30 @@ class Protocol:
     # the executor's guarded approach (ExecutionLimits.close_on_contact_within_m, m): 0,
     # off, as the node's default; kept out of config.json while off, as clear_hand
     close_on_contact_within_m: float = 0.0
+    # How a round is simulated (EXECUTION_SETTINGS; sim_bridge/doc/benchmark-speed.md).
+    # The defaults are the "fast" settings; a config.json without these keys was run
+    # under LEGACY_EXECUTION.
+    lift_speed_mps: float = 0.05      # grasp -> lift (the executor's approach speed before)
+    freeze_resting_objects: bool = False  # world.resting_objects
+
+
+# Named execution settings (`--execution NAME`): what a round's motions and physics cost.
+# "v4": every run up to benchmark v4; "freeze_only": objects at rest away from the hand
+# frozen; "fast": that and a lift at 0.15 m/s (a UR cell's free-space speeds are
+# 0.1-0.25 m/s). What each changes in the outcomes: execution_settings_study.
+EXECUTION_SETTINGS = {
+    "v4": {"lift_speed_mps": 0.05, "freeze_resting_objects": False},
+    "freeze_only": {"lift_speed_mps": 0.05, "freeze_resting_objects": True},
+    "fast": {"lift_speed_mps": 0.15, "freeze_resting_objects": True},
+}
+LEGACY_EXECUTION = EXECUTION_SETTINGS["v4"]
+
+
+def with_execution(protocol: Protocol, name: str) -> Protocol:
+    """`protocol` under the named execution settings; ValueError for an unknown name."""
+    if name not in EXECUTION_SETTINGS:
+        raise ValueError(f"execution settings {name!r}: use {' or '.join(map(repr, EXECUTION_SETTINGS))}")
+    return dataclasses.replace(protocol, **EXECUTION_SETTINGS[name])
 
 
 # objects and scenes

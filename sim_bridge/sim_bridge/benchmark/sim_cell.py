@@ -81,7 +81,8 @@ class SimCell:
         settings = WorldSettings(contact=SimSettings(time_step_s=protocol.time_step_s,
                                                      grip_force_n=protocol.grip_force_n,
                                                      relaxation_time_s=protocol.relaxation_time_s),
-                                 max_speed_mps=protocol.free_space_speed_mps)
+                                 max_speed_mps=protocol.free_space_speed_mps,
+                                 freeze_resting_objects=protocol.freeze_resting_objects)
         self.world = SimWorld(SceneConfig(objects=objects, object_mass_kg=mass_kg,
                                           arrangement=scene["arrangement"]), settings)
         self.protocol, self.volume, self._detect = protocol, volume, detect
@@ -90,6 +91,7 @@ class SimCell:
         # its parallel-closing estimate refused half of the power labels simulation passed.
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
                                       max_speed_mps=protocol.free_space_speed_mps,
+                                      lift_speed_mps=protocol.lift_speed_mps,
                                       close_on_contact_within_m=protocol.close_on_contact_within_m)
         self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
                                       reachability=None, log=lambda *_: None)

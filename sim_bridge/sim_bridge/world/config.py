@@ -70,6 +70,9 @@ class WorldSettings:
     max_angular_speed_rad_s: float = 1.5
     max_contact_force_n: float = 60.0  # rise of the net contact force on the hand (since a motion began) that stops it
     settle_time_s: float = 0.3  # after loading, with the hand at home
+    # Freeze objects at rest away from the hand and filter their contacts
+    # (resting_objects): a clutter round's steps cost what the hand's neighbourhood does.
+    freeze_resting_objects: bool = False
 
     def validate(self):
         self.contact.validate()

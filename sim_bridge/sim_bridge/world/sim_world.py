@@ -52,6 +52,7 @@ from .contacts import hand_contacts, object_states
 from .diagram import PARKING_SHELF_M, build_world_diagram
 from .fingers import Fingers
 from .motion import Motion, check_reachable
+from .resting_objects import RestingObjects
 from .scene_objects import draw_scene
 
 # The hand's floating body weighs this much in the simulation. Its state is reset every
@@ -109,6 +110,9 @@ class SimWorld:
             self._motion = None
             self._set_hand_state(self._hold, np.zeros(3), np.zeros(3))
             self._fingers = Fingers(self._model, self.simulator, self.settings.contact.grip_force_n)
+            self._resting = (RestingObjects(self._model, self._model.scene_graph.GetMyMutableContextFromRoot(
+                self.simulator.get_mutable_context()), self.names, self._hull_vertices)
+                if self.settings.freeze_resting_objects else None)
             self.simulator.Initialize()
             self._advance_locked(self.settings.settle_time_s)
             names = list(self.names)
@@ -172,6 +176,8 @@ class SimWorld:
         else:
             self._set_hand_state(self._hold, np.zeros(3), np.zeros(3))
             self.simulator.AdvanceTo(t + dt)
+        if self._resting is not None:
+            self._resting.after_step(self._plant_context(), self.time_s)
         self._fingers.update_stall()
 
     def _set_hand_state(self, X_task_tcp, v_task, w_task):
@@ -344,6 +350,8 @@ class SimWorld:
             x, y, z = PARKING_SHELF_M
             self._model.plant.SetFreeBodyPose(pc, body, _rigid(pose(p=(x + 0.5 * k, y, z + 0.2))))
             self._model.plant.SetFreeBodySpatialVelocity(pc, body, _zero_velocity())
+            if self._resting is not None:
+                self._resting.moved(pc, name)
             self._removed.add(name)
 
     # -- camera -------------------------------------------------------------------

@@ -1,0 +1,268 @@
+"""Do cheaper execution settings change what the benchmark decides? (benchmark speed)
+
+A round's CPU is almost all Drake stepping every object at 1 ms (sim_bridge/doc/
+benchmark-speed.md). `protocol.EXECUTION_SETTINGS` names cheaper ways to simulate the same
+protocol (objects at rest frozen, a faster lift). This study checks them attempt by
+attempt, paired, on committed benchmark rounds:
+
+1. each round is replayed under the settings it was run with (the committed config.json;
+   rounds are deterministic, so the replay's grasps are the round's);
+2. before each attempt, the whole simulation state is saved (Drake context, the world's
+   and executor's own state); the attempt's grasp is executed under each new setting from
+   that state, and the state is restored;
+3. then the attempt runs under the old settings, and the round goes on from there.
+
+So every new-settings attempt starts from exactly the scene and grasp the old one did,
+and its outcome (success, dropped, no_object, ...) is compared with the old one's. CPU
+and simulated time are measured for each, side by side, on the same machine.
+
+    python -m sim_bridge.benchmark.execution_settings_study --out sim_bridge/results/execution_settings_study
+
+One JSON per round under --out/rounds (a rerun resumes), the summary in
+--out/../execution_settings_study.json; the last line printed is `outcome_agreement=`
+(the lowest over the settings studied).
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import json
+import pathlib
+import sys
+import time
+
+import torch
+
+from gravgrasp_detector import atomic_files
+from gravgrasp_detector.model_file import file_sha256
+
+from ..parallel import make_executor, run_tasks
+from .clearing import clear_table
+from .protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
+from .rounds import RoundTask, make_cell
+
+# The committed rounds the study replays: (results dir, method, weight kg, scenes). The
+# held-out tuning meshes (models/vgn_heldout_meshes.txt), both methods, both ends of the
+# weight range; ~120 attempts.
+DEFAULT_ROUNDS = (
+    ("sim_bridge/results/heldout_v4_a47ba91", "ours", 1.5, ("packed_000", "pile_000", "packed_001", "pile_001",
+                                                           "packed_002", "pile_002", "packed_003")),
+    ("sim_bridge/results/heldout_v4_a47ba91", "binary", 1.5, ("packed_000", "pile_000", "packed_001", "pile_001",
+                                                             "packed_002", "pile_002", "packed_003", "pile_003")),
+    ("sim_bridge/results/heldout_v4", "ours", 0.1, ("packed_000", "pile_000", "packed_001", "pile_001",
+                                                    "packed_002", "pile_002", "packed_003", "pile_003")),
+    ("sim_bridge/results/heldout_v4", "binary", 0.1, ("packed_000", "pile_000", "packed_001", "pile_001",
+                                                      "packed_002", "pile_002", "packed_003", "pile_003")),
+)
+STUDIED = ("fast", "freeze_only")
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyRound:
+    results_dir: str
+    task: RoundTask
+    recorded_outcomes: tuple
+    settings: tuple  # names in EXECUTION_SETTINGS
+
+
+def round_protocol(config: dict) -> Protocol:
+    """The Protocol a committed run's config.json describes."""
+    return Protocol(**config["protocol"])
+
+
+class _Snapshot:
+    """Everything a SimCell's next attempt depends on, to run it twice from one state."""
+
+    def __init__(self, cell):
+        w, ex = cell.world, cell.executor
+        self.context = w.simulator.get_context().Clone()
+        self.world = {k: copy.copy(getattr(w, k)) for k in ("_hold", "_motion", "_removed")}
+        self.fingers = copy.copy(vars(w._fingers))
+        self.cell = {"_fallen": set(cell._fallen), "protocol": cell.protocol, "limits": cell.limits}
+        self.executor = {k: getattr(ex, k) for k in ("calibration", "gripper", "armed", "limits")}
+        self.resting = w._resting
+
+    def restore(self, cell):
+        w, ex = cell.world, cell.executor
+        if w._resting is not None:
+            w._resting.wake_all()  # removes its collision filter from the context copied over next
+        w.simulator.get_mutable_context().SetTimeStateAndParametersFrom(self.context)
+        w.simulator.Initialize()  # Drake's simulator refuses a context whose time went back otherwise
+        for k, v in self.world.items():
+            setattr(w, k, copy.copy(v))
+        vars(w._fingers).update(copy.copy(self.fingers))
+        cell._fallen = set(self.cell["_fallen"])
+        cell.protocol, cell.limits = self.cell["protocol"], self.cell["limits"]
+        for k, v in self.executor.items():
+            setattr(ex, k, v)
+        w._resting = self.resting
+
+
+def _switch(cell, protocol: Protocol):
+    """Run the cell's next attempt under `protocol`'s execution settings."""
+    from ..world.resting_objects import RestingObjects
+    w = cell.world
+    cell.protocol = protocol
+    cell.limits = dataclasses.replace(cell.limits, lift_speed_mps=protocol.lift_speed_mps)
+    cell.executor.limits = cell.limits
+    if protocol.freeze_resting_objects and w._resting is None:
+        sg_context = w._model.scene_graph.GetMyMutableContextFromRoot(w.simulator.get_mutable_context())
+        w._resting = RestingObjects(w._model, sg_context, w.names, w._hull_vertices)
+    elif not protocol.freeze_resting_objects:
+        w._resting = None
+
+
+def _timed(cell, fn):
+    t0, s0 = time.process_time(), cell.world.time_s
+    result = fn()
+    return result, round(time.process_time() - t0, 2), round(cell.world.time_s - s0, 3)
+
+
+def study_round(sr: StudyRound) -> dict:
+    torch.set_num_threads(1)
+    t_start = time.process_time()
+    cell, _ = make_cell(sr.task)
+    old = sr.task.protocol
+    execute, attempts = cell.execute, []
+
+    def paired_execute(grasp, tsdf):
+        snapshot = _Snapshot(cell)
+        new = {}
+        for name in sr.settings:
+            _switch(cell, with_execution(old, name))
+            try:
+                result, cpu_s, sim_s = _timed(cell, lambda: execute(grasp, tsdf))
+            except Exception as e:  # Refused: the same checks refuse under every setting
+                if type(e).__name__ == "Refused":
+                    snapshot.restore(cell)
+                    raise
+                result, cpu_s, sim_s = {"outcome": f"error: {type(e).__name__}: {e}"[:200]}, None, None
+            new[name] = {"outcome": result["outcome"], "cpu_s": cpu_s, "sim_s": sim_s,
+                         "reason": result.get("reason", "")[:200]}
+            snapshot.restore(cell)
+        result, cpu_s, sim_s = _timed(cell, lambda: execute(grasp, tsdf))
+        n = len(attempts)
+        attempts.append({"attempt": n + 1, "recorded": sr.recorded_outcomes[n] if n < len(sr.recorded_outcomes) else None,
+                         "old": {"outcome": result["outcome"], "cpu_s": cpu_s, "sim_s": sim_s,
+                                 "reason": result["reason"][:200]},
+                         "new": new, "validness": result["validness"], "score": result["score"]})
+        return result
+
+    cell.execute = paired_execute
+    cell.settle()
+    cell.remove_fallen()
+    clear_table(cell, len(cell.objects_on_table()), old.attempts_per_object)
+    return {"results_dir": sr.results_dir, "method": sr.task.method, "mass_kg": sr.task.mass_kg,
+            "scene_id": sr.task.scene["scene_id"], "settings": {n: EXECUTION_SETTINGS[n] for n in sr.settings},
+            "old_settings": {k: getattr(old, k) for k in EXECUTION_SETTINGS["v4"]},
+            "attempts": attempts, "cpu_s": round(time.process_time() - t_start, 1)}
+
+
+def _guarded(sr):
+    try:
+        return study_round(sr)
+    except Exception as e:
+        return {"error": f"{type(e).__name__}: {str(e)[:300]}"}
+
+
+def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models") -> list:
+    """StudyRounds of the committed rounds; ValueError (one line) for a missing round or model."""
+    out = []
+    for results_dir, method, mass_kg, scenes in rounds:
+        d = pathlib.Path(results_dir)
+        config = json.loads((d / "config.json").read_text())
+        model = pathlib.Path(models_dir) / METHODS[method]
+        sha = file_sha256(model)
+        for sid in scenes:
+            rf = d / "rounds" / method / weight_key(mass_kg) / f"{sid}.json"
+            if not rf.is_file():
+                raise ValueError(f"no committed round {rf}")
+            rec = json.loads(rf.read_text())
+            if rec["model_sha256"] != sha:
+                raise ValueError(f"{model} is not the model {rf} ran (sha256 {rec['model_sha256'][:12]}…)")
+            scene = json.loads((d / "scenes" / f"{sid}.json").read_text())
+            task = RoundTask(method, str(model), sha, float(mass_kg), scene, round_protocol(config))
+            out.append(StudyRound(str(d), task, tuple(a["outcome"] for a in rec["attempts"]), tuple(settings)))
+    return out
+
+
+def summarize(records: list, settings) -> dict:
+    pairs = [a for r in records for a in r["attempts"]]
+    summary = {"rounds": len(records), "attempts": len(pairs),
+               "replay_matched_recorded": sum(a["old"]["outcome"] == a["recorded"] for a in pairs), "settings": {}}
+    for name in settings:
+        rows = [a for a in pairs if name in a["new"]]
+        differ = [{"round": f"{r['method']} {r['mass_kg']} kg {r['scene_id']}", "attempt": a["attempt"],
+                   "old": a["old"]["outcome"], "new": a["new"][name]["outcome"]}
+                  for r in records for a in r["attempts"] if a["new"][name]["outcome"] != a["old"]["outcome"]]
+        same_success = sum((a["new"][name]["outcome"] == "success") == (a["old"]["outcome"] == "success")
+                           for a in rows)
+        by_method = {}
+        for r in records:
+            m = by_method.setdefault(f"{r['method']}@{r['mass_kg']}", {"old_successes": 0, "new_successes": 0,
+                                                                       "attempts": 0})
+            for a in r["attempts"]:
+                m["attempts"] += 1
+                m["old_successes"] += a["old"]["outcome"] == "success"
+                m["new_successes"] += a["new"][name]["outcome"] == "success"
+        cpu_old = sum(a["old"]["cpu_s"] for a in rows)
+        cpu_new = sum(a["new"][name]["cpu_s"] or 0.0 for a in rows)
+        summary["settings"][name] = {
+            **EXECUTION_SETTINGS[name], "attempts": len(rows),
+            "outcome_agreement": round((len(rows) - len(differ)) / len(rows), 4) if rows else None,
+            "success_agreement": round(same_success / len(rows), 4) if rows else None,
+            "attempt_cpu_ratio": round(cpu_new / cpu_old, 3) if cpu_old else None,
+            "attempt_sim_s_old": round(sum(a["old"]["sim_s"] for a in rows), 1),
+            "attempt_sim_s_new": round(sum(a["new"][name]["sim_s"] or 0.0 for a in rows), 1),
+            "by_method_weight": by_method, "differing": differ}
+    return summary
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("--out", default="sim_bridge/results/execution_settings_study")
+    p.add_argument("--settings", default=",".join(STUDIED),
+                   help=f"execution settings to compare with the rounds' own ({', '.join(EXECUTION_SETTINGS)})")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--max-rounds", type=int, help="study only the first N rounds of the plan")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    settings = tuple(s for s in args.settings.split(",") if s)
+    try:
+        for s in settings:
+            with_execution(Protocol(), s)
+        rounds = plan(settings=settings)[:args.max_rounds]
+    except (ValueError, OSError) as e:
+        print(f"execution_settings_study: {e}", file=sys.stderr)
+        return 2
+    out = pathlib.Path(args.out)
+
+    def path(sr):
+        return out / "rounds" / sr.task.method / weight_key(sr.task.mass_kg) / f"{sr.task.scene['scene_id']}.json"
+
+    def on_result(sr, result):
+        if "error" in result:
+            print(f"execution_settings_study: {sr.task.method} {sr.task.mass_kg} kg "
+                  f"{sr.task.scene['scene_id']} failed: {result['error']}", file=sys.stderr)
+        else:
+            atomic_files.save_json(path(sr), result)
+
+    pending = [sr for sr in rounds if not path(sr).exists()]
+    if pending:
+        with make_executor(args.workers) as ex:
+            run_tasks(ex, _guarded, pending, on_result, desc="rounds", progress=not args.no_progress)
+    records = [json.loads(path(sr).read_text()) for sr in rounds if path(sr).exists()]
+    summary = summarize(records, settings)
+    atomic_files.save_json(out.parent / f"{out.name}.json", summary)
+    for name, s in summary["settings"].items():
+        print(f"{name}: {s['attempts']} attempts, outcome agreement {s['outcome_agreement']}, success agreement "
+              f"{s['success_agreement']}, CPU ratio {s['attempt_cpu_ratio']}; differing: {len(s['differing'])}")
+    agreements = [s["outcome_agreement"] for s in summary["settings"].values() if s["outcome_agreement"] is not None]
+    print(f"outcome_agreement={min(agreements) if agreements else float('nan')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
