@@ -452,3 +452,39 @@ def test_a_recorded_round_replays_to_the_same_attempts_and_shows_the_closing_reg
     assert replay.main(["--results", str(out), "--method", "ours", "--weight", "1.5", "--scene", "packed_000",
                         "--model", str(model)]) == 2
     assert "no round" in capsys.readouterr().err
+
+
+# execution settings (protocol.EXECUTION_SETTINGS): recorded, resumed, never pooled
+
+
+def _legacy_config(tmp_path):
+    """A config.json as runs up to benchmark v4 wrote it: no execution settings in it."""
+    import dataclasses as dc
+    from sim_bridge.benchmark.protocol import LEGACY_EXECUTION, PROCEDURAL_SEED, Protocol as P
+    protocol = {k: v for k, v in dc.asdict(P()).items()
+                if k not in LEGACY_EXECUTION and k not in ("clear_hand", "close_on_contact_within_m")}
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "meshes": None, "procedural_seed": PROCEDURAL_SEED,
+                                                      "objects_per_scene": 5, "protocol": protocol}))
+
+
+def test_a_run_from_before_execution_settings_resumes_as_v4_and_refuses_others(tmp_path):
+    from sim_bridge.benchmark.protocol import Protocol as P, with_execution
+    from sim_bridge.benchmark.rounds import run_benchmark
+    _legacy_config(tmp_path)
+    model = tmp_path / "m.pt"
+    model.write_bytes(b"x")
+    run_benchmark(tmp_path, {"ours": str(model)}, [0.1], 2, protocol=with_execution(P(), "v4"), report_only=True)
+    with pytest.raises(ValueError, match="execution settings v4, not fast.*never pooled.*--execution v4"):
+        run_benchmark(tmp_path, {"ours": str(model)}, [0.1], 2, protocol=with_execution(P(), "fast"),
+                      report_only=True)
+
+
+def test_the_report_refuses_rounds_run_under_other_execution_settings(tmp_path):
+    from sim_bridge.benchmark.protocol import EXECUTION_SETTINGS, Protocol as P
+    from sim_bridge.benchmark.report import write_outputs
+    path = tmp_path / "rounds" / "ours" / "0.1" / "packed_000.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps({"model_sha256": "abc", "method": "ours", "mass_kg": 0.1, "scene_id": "packed_000",
+                                "execution": EXECUTION_SETTINGS["fast"], "attempts": []}))
+    with pytest.raises(ValueError, match="1 rounds .* ran under execution settings fast .* never pooled"):
+        write_outputs(tmp_path, {"ours": [0.1]}, {"ours": "abc"}, ["packed_000"], [], P(), None)

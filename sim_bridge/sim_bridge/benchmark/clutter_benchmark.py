@@ -53,7 +53,8 @@ from concurrent.futures.process import BrokenProcessPool
 from ..datagen.object_sources import read_name_list
 from ..physics.objects import ObjectError
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, METHODS, QUICK_ABLATION_WEIGHTS_KG,
-                       QUICK_WEIGHTS_KG, RANKING_VARIANTS, Protocol, weight_key)
+                       QUICK_WEIGHTS_KG, RANKING_VARIANTS, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol,
+                       weight_key)
 from .report import compare_to
 from .rounds import resolve_methods, run_benchmark
 
@@ -107,6 +108,9 @@ def main(argv=None) -> int:
     p.add_argument("--time-step-s", type=float, default=Protocol.time_step_s)
     p.add_argument("--relaxation-time-s", type=float, default=Protocol.relaxation_time_s,
                    help="SAP relaxation time of every contact; default: SimSettings' choice for the time step")
+    p.add_argument("--execution", default=DEFAULT_EXECUTION, choices=sorted(EXECUTION_SETTINGS),
+                   help="how rounds are simulated (protocol.EXECUTION_SETTINGS; v4: every run up to benchmark v4); "
+                        f"default {DEFAULT_EXECUTION}")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write results.md etc. from the rounds finished so far in --out (same "
@@ -155,7 +159,8 @@ def main(argv=None) -> int:
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
                         hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
                         relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand,
-                        close_on_contact_within_m=args.close_on_contact_within_m)
+                        close_on_contact_within_m=args.close_on_contact_within_m,
+                        **EXECUTION_SETTINGS[args.execution])
     out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
     t0 = time.monotonic()
     try:

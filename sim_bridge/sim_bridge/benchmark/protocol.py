@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 
 import numpy as np
 
@@ -69,8 +70,7 @@ class Protocol:
     # off, as the node's default; kept out of config.json while off, as clear_hand
     close_on_contact_within_m: float = 0.0
     # How a round is simulated (EXECUTION_SETTINGS; sim_bridge/doc/benchmark-speed.md).
-    # The defaults are the "fast" settings; a config.json without these keys was run
-    # under LEGACY_EXECUTION.
+    # Defaults: "v4"'s; a config.json without these keys was run under LEGACY_EXECUTION.
     lift_speed_mps: float = 0.05      # grasp -> lift (the executor's approach speed before)
     freeze_resting_objects: bool = False  # world.resting_objects
 
@@ -85,6 +85,19 @@ EXECUTION_SETTINGS = {
     "fast": {"lift_speed_mps": 0.15, "freeze_resting_objects": True},
 }
 LEGACY_EXECUTION = EXECUTION_SETTINGS["v4"]
+DEFAULT_EXECUTION = "v4"  # the benchmark CLI's --execution
+
+
+def execution_of(settings: dict) -> dict:
+    """The execution settings a config.json's "protocol" or a round record holds (runs from
+    before they were recorded: LEGACY_EXECUTION)."""
+    return {k: settings.get(k, v) for k, v in LEGACY_EXECUTION.items()}
+
+
+def execution_name(settings: dict) -> str:
+    """The EXECUTION_SETTINGS name of these settings, or a description of them."""
+    own = execution_of(settings)
+    return next((n for n, v in EXECUTION_SETTINGS.items() if v == own), json.dumps(own, sort_keys=True))
 
 
 def with_execution(protocol: Protocol, name: str) -> Protocol:

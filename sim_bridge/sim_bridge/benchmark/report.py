@@ -4,6 +4,7 @@ SR/CR-vs-weight plot."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -15,7 +16,7 @@ from gravgrasp_detector import atomic_files
 from gravgrasp_detector.grasp_execution import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
 from .clearing import success_rates
-from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, weight_key
+from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, execution_name, execution_of, weight_key
 
 # statistics
 
@@ -93,6 +94,14 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
                     r = json.loads(p.read_text())
                     if r.get("model_sha256") == shas[method]:
                         rounds.append(r)
+    own = execution_of(dataclasses.asdict(protocol))
+    mixed = [r for r in rounds if execution_of(r.get("execution", {})) != own]
+    if mixed:
+        r = mixed[0]
+        raise ValueError(f"{len(mixed)} rounds in {out} ran under execution settings "
+                         f"{execution_name(r.get('execution', {}))} (e.g. {r['method']} {r['mass_kg']} kg "
+                         f"{r['scene_id']}), the run's config.json says {execution_name(own)}: rounds run under "
+                         "different settings are never pooled; move them to their own --out")
     attempts = []
     for r in rounds:
         for i, a in enumerate(r["attempts"]):

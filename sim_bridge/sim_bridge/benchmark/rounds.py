@@ -21,8 +21,8 @@ from gravgrasp_detector.tsdf import TSDFVolume
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
 from .clearing import clear_table
-from .protocol import (ABLATION_METHODS, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED, RANKING_VARIANTS,
-                       SCHEMA_VERSION, Protocol,
+from .protocol import (ABLATION_METHODS, LEGACY_EXECUTION, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED,
+                       RANKING_VARIANTS, SCHEMA_VERSION, Protocol, execution_name, execution_of,
                        SceneDrawTask, make_scene, object_pool, scene_ids, weight_key)
 from .report import write_outputs
 from .sim_cell import SimCell
@@ -83,7 +83,8 @@ def run_round(task: RoundTask) -> dict:
             "objects": names, "n_objects": n_objects, "left_before_start": left_before_start,
             "settle_s": round(settle_s, 2), **record,
             "successes": sum(a["success"] for a in record["attempts"]),
-            "sim_time_s": round(cell.world.time_s, 3), "cpu_s": round(time.process_time() - t0, 1)}
+            "sim_time_s": round(cell.world.time_s, 3), "cpu_s": round(time.process_time() - t0, 1),
+            "execution": {k: getattr(task.protocol, k) for k in LEGACY_EXECUTION}}
 
 
 # the run
@@ -141,6 +142,11 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         raise ValueError(f"{out} holds no benchmark run (no config.json): give the --out of a run")
     if config_path.exists():
         previous = json.loads(config_path.read_text())
+        previous["protocol"].update(execution_of(previous["protocol"]))  # written before they were recorded
+        if previous != config and {**previous, "protocol": {**previous["protocol"], **execution_of(config["protocol"])}} == config:
+            raise ValueError(f"{out} was run under execution settings {execution_name(previous['protocol'])}, not "
+                             f"{execution_name(config['protocol'])}: rounds run under different settings are never "
+                             f"pooled; pass --execution {execution_name(previous['protocol'])} or use another --out")
         if previous != config:
             raise ValueError(f"{out} holds a run with another configuration ({config_path}); "
                              "use another --out, or delete it to start over")
