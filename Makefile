@@ -18,6 +18,8 @@ help:
 	@echo "make bench-train   - one training step (batch 8): the training forward vs the dense one"
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
+	@echo "make bench-round   - a clutter round's CPU under the v4 and the fast execution settings, side by side"
+	@echo "make execution-settings-study - recorded attempts replayed under the new execution settings: same outcomes?"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
@@ -71,6 +73,15 @@ bench-train: setup
 
 bench-sim: setup
 	@$(ROS) ros2 run sim_bridge bench_sim
+
+# A clutter round's CPU under v4's and the new execution settings, side by side (minutes).
+.PHONY: bench-round execution-settings-study
+bench-round: setup
+	@$(ROS) python -m sim_bridge.benchmark.bench_round
+
+# Committed rounds replayed attempt by attempt under v4's and the new settings (~1.5 h; resumable).
+execution-settings-study: setup
+	@$(ROS) python -m sim_bridge.benchmark.execution_settings_study --workers 2
 
 bench-gripper: setup
 	@$(ROS) ros2 run robotiq_driver bench_gripper

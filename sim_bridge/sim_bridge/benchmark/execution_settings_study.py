@@ -55,7 +55,7 @@ DEFAULT_ROUNDS = (
     ("sim_bridge/results/heldout_v4", "binary", 0.1, ("packed_000", "pile_000", "packed_001", "pile_001",
                                                       "packed_002", "pile_002", "packed_003", "pile_003")),
 )
-STUDIED = ("fast", "freeze_only")
+STUDIED = ("fast",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,21 +169,25 @@ def _guarded(sr):
 def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models") -> list:
     """StudyRounds of the committed rounds; ValueError (one line) for a missing round or model."""
     out = []
-    for results_dir, method, mass_kg, scenes in rounds:
+    # Interleaved (the first scene of every group, then the second, ...): a study cut
+    # short has every method and weight.
+    order = sorted(((k, g) for g, (*_, scenes) in enumerate(rounds) for k in range(len(scenes))))
+    for k, g in order:
+        results_dir, method, mass_kg, scenes = rounds[g]
+        sid = scenes[k]
         d = pathlib.Path(results_dir)
         config = json.loads((d / "config.json").read_text())
         model = pathlib.Path(models_dir) / METHODS[method]
         sha = file_sha256(model)
-        for sid in scenes:
-            rf = d / "rounds" / method / weight_key(mass_kg) / f"{sid}.json"
-            if not rf.is_file():
-                raise ValueError(f"no committed round {rf}")
-            rec = json.loads(rf.read_text())
-            if rec["model_sha256"] != sha:
-                raise ValueError(f"{model} is not the model {rf} ran (sha256 {rec['model_sha256'][:12]}…)")
-            scene = json.loads((d / "scenes" / f"{sid}.json").read_text())
-            task = RoundTask(method, str(model), sha, float(mass_kg), scene, round_protocol(config))
-            out.append(StudyRound(str(d), task, tuple(a["outcome"] for a in rec["attempts"]), tuple(settings)))
+        rf = d / "rounds" / method / weight_key(mass_kg) / f"{sid}.json"
+        if not rf.is_file():
+            raise ValueError(f"no committed round {rf}")
+        rec = json.loads(rf.read_text())
+        if rec["model_sha256"] != sha:
+            raise ValueError(f"{model} is not the model {rf} ran (sha256 {rec['model_sha256'][:12]}…)")
+        scene = json.loads((d / "scenes" / f"{sid}.json").read_text())
+        task = RoundTask(method, str(model), sha, float(mass_kg), scene, round_protocol(config))
+        out.append(StudyRound(str(d), task, tuple(a["outcome"] for a in rec["attempts"]), tuple(settings)))
     return out
 
 

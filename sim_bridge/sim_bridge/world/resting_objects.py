@@ -13,8 +13,9 @@ during the lift. An asleep object:
   contacts with the hand and with awake objects stay, and it wakes before those begin.
 
 An object falls asleep once it has been slower than SLEEP_SPEED_MPS (and
-SLEEP_ANGULAR_RAD_S) for REST_BEFORE_SLEEP_S with its bounding box more than SLEEP_GAP_M
-from the hand's and from every moving object's (faster than WAKE_SPEED_MPS or
+SLEEP_ANGULAR_RAD_S) for REST_BEFORE_SLEEP_S with its bounding box (of its hull, in the task
+frame) more than SLEEP_GAP_M from the hand (a bounding sphere per hand geometry) and from
+every moving object's box (faster than WAKE_SPEED_MPS or
 WAKE_ANGULAR_RAD_S). It wakes as soon as one of those comes within WAKE_GAP_M (checked every CHECK_EVERY_STEPS steps: at the stand-in's 0.5 m/s cap
 the hand moves 2.5 mm between checks). Waking restores the contacts it had, from exactly
 the state it had, so a resting object behaves as if it had never slept. What this changes
@@ -79,10 +80,11 @@ class RestingObjects:
                 X_BG = inspector.GetPoseInFrame(gid).GetAsMatrix4()
                 c, r = _bounding_sphere(_shape_points(inspector.GetShape(gid)))
                 self._hand.append((body, X_BG[:3, :3] @ c + X_BG[:3, 3], r))
-        self._objects = []  # (name, body, local centre, radius, collision GeometryIds)
+        self._hand_radii = np.array([r for _, _, r in self._hand])
+        self._objects = []  # (name, body, hull vertices in the body frame, collision GeometryIds)
         for name, body in zip(names, model.object_bodies):
-            c, r = _bounding_sphere(hull_vertices[name])
-            self._objects.append((name, body, c, r, list(plant.GetCollisionGeometriesForBody(body))))
+            self._objects.append((name, body, np.asarray(hull_vertices[name], float),
+                                  list(plant.GetCollisionGeometriesForBody(body))))
         self._world_geometries = list(plant.GetCollisionGeometriesForBody(plant.world_body()))
         self._filters = model.scene_graph.collision_filter_manager(scene_graph_context)
         self._filter_id = None
@@ -120,12 +122,12 @@ class RestingObjects:
         """Wake the asleep that something comes near, put to sleep the long at rest;
         True if any changed."""
         plant = self._model.plant
-        hand_lo, hand_hi = self._hand_box(plant_context)
+        hand = self._hand_spheres(plant_context)
         boxes, movers = [], []
-        for i, (_, body, c, r, _) in enumerate(self._objects):
-            X = plant.EvalBodyPoseInWorld(plant_context, body)
-            centre = X.multiply(c)
-            boxes.append((centre - r, centre + r))
+        for i, (_, body, vertices, _) in enumerate(self._objects):
+            X = plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix4()
+            p = vertices @ X[:3, :3].T + X[:3, 3]
+            boxes.append((p.min(axis=0), p.max(axis=0)))
             if i in self._asleep:
                 continue
             V = plant.EvalBodySpatialVelocityInWorld(plant_context, body)
@@ -136,21 +138,20 @@ class RestingObjects:
                 self._resting_since.pop(i, None)
             if v > WAKE_SPEED_MPS or w > WAKE_ANGULAR_RAD_S:
                 movers.append(i)
+
+        def gap(i):  # to the hand and to every moving object
+            lo, hi = boxes[i]
+            to_hand = _sphere_box_gap(hand, lo, hi)
+            return min([to_hand, *(_gap(lo, hi, *boxes[j]) for j in movers if j != i)])
+
         changed = False
         for i in list(self._asleep):
-            lo, hi = boxes[i]
-            near = _gap(lo, hi, hand_lo, hand_hi) < WAKE_GAP_M or any(
-                _gap(lo, hi, *boxes[j]) < WAKE_GAP_M for j in movers)
-            if near:
+            if gap(i) < WAKE_GAP_M:
                 del self._asleep[i]
                 self._resting_since.pop(i, None)
                 changed = True
         for i, since in list(self._resting_since.items()):
-            if i in self._asleep or time_s - since < REST_BEFORE_SLEEP_S:
-                continue
-            lo, hi = boxes[i]
-            if _gap(lo, hi, hand_lo, hand_hi) > SLEEP_GAP_M and all(
-                    _gap(lo, hi, *boxes[j]) > SLEEP_GAP_M for j in movers):
+            if i not in self._asleep and time_s - since >= REST_BEFORE_SLEEP_S and gap(i) > SLEEP_GAP_M:
                 self._asleep[i] = plant.EvalBodyPoseInWorld(plant_context, self._objects[i][1])
                 changed = True
         return changed
@@ -163,17 +164,16 @@ class RestingObjects:
             plant.SetFreeBodyPose(plant_context, body, X)
             plant.SetFreeBodySpatialVelocity(plant_context, body, zero)
 
-    def _hand_box(self, plant_context):
+    def _hand_spheres(self, plant_context) -> tuple:
+        """(centres [N, 3], radii [N]) of the hand's geometry bounds, task frame."""
         plant = self._model.plant
-        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-        poses = {}
-        for body, c, r in self._hand:
+        poses, centres = {}, []
+        for body, c, _ in self._hand:
             X = poses.get(body.index())
             if X is None:
                 X = poses[body.index()] = plant.EvalBodyPoseInWorld(plant_context, body)
-            p = X.multiply(c)
-            lo, hi = np.minimum(lo, p - r), np.maximum(hi, p + r)
-        return lo, hi
+            centres.append(X.multiply(c))
+        return np.array(centres), self._hand_radii
 
     def _apply_filter(self):
         """One transient filter: no contact within {asleep objects, table, shelf}."""
@@ -183,9 +183,16 @@ class RestingObjects:
         if self._asleep:
             ids = list(self._world_geometries)
             for i in self._asleep:
-                ids += self._objects[i][4]
+                ids += self._objects[i][3]
             self._filter_id = self._filters.ApplyTransient(
                 CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
+
+
+def _sphere_box_gap(spheres, lo, hi) -> float:
+    """Smallest distance from any of the spheres ((centres, radii)) to a box (0: touching)."""
+    centres, radii = spheres
+    nearest = np.clip(centres, lo, hi)
+    return float(max(0.0, (np.linalg.norm(centres - nearest, axis=1) - radii).min()))
 
 
 def _gap(lo_a, hi_a, lo_b, hi_b) -> float:
