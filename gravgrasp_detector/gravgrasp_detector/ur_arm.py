@@ -60,6 +60,16 @@ read (flange_pose, for calibration) and every motion request is answered with th
 state or raises ConnectionLost saying so. Retrying passes the live receive interface back
 to `connect`, so flange_pose has no gaps while the control interface is retried.
 
+The flange pose is the actual TCP pose (the controller's calibrated kinematics) times
+inv(tcp_in_flange), which holds only while the controller's TCP is tcp_in_flange. With
+control, setTcp makes it so. Monitoring only, setTcp cannot be sent and the TCP is the
+pendant's; ur_rtde's getTCPOffset is a control-interface call, so it cannot be read either.
+So each flange pose is checked first: the nominal UR5e kinematics of the joint angles
+(getActualQ, ur_kinematics) give the flange, and inv(flange) @ actual TCP is the TCP the
+controller uses. Off tcp_in_flange by more than tcp_check_tolerance_m / _deg, no pose is
+given (TCPMismatch, saying what to set). The nominal kinematics only judge the TCP: they
+can be millimetres off the robot's own calibration, which the controller's pose is not.
+
 Never hang: every RTDE call runs on this connection's own thread and is waited on for
 at most `call_timeout_s` (`connect_timeout_s` for connecting); no answer, an exception,
 or isConnected() false raise `ConnectionLost` and drop the connection; the next request
@@ -77,6 +87,7 @@ from typing import Callable
 import numpy as np
 
 from .ur_arm_settings import URArmSettings
+from .ur_kinematics import flange_in_base as nominal_flange_in_base
 from .ur_controller import (ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread, matrix_to_ur_pose,
                             pose_error, safety_action, state_refusal, ur_pose_to_matrix)
 
@@ -89,6 +100,11 @@ class ConnectionLost(URArmError):
     """The link to the controller failed: not reachable, no answer within the timeout,
     an RTDE call raised, or the interfaces report a lost connection. The connection is
     dropped; the next request or `connect()` builds fresh interfaces."""
+
+
+class TCPMismatch(URArmError):
+    """Monitoring only: the controller's TCP (the pendant's) is not tcp_in_flange, so the
+    actual TCP pose does not give the flange; the message says what to set."""
 
 
 @dataclasses.dataclass
@@ -485,14 +501,35 @@ class URArm:
         return MoveResult(True, True, f"reached the target ({dp * 1000:.1f} mm, {da:.2f} deg){speed_note}", joints,
                           False, dp)
 
-    def flange_in_task(self) -> np.ndarray:
-        """X_task_flange now (from the actual TCP pose and the TCP offset). Raises ConnectionLost."""
+    def flange_in_base(self) -> np.ndarray:
+        """X_base_flange now: the actual TCP pose and tcp_in_flange; monitoring only, after
+        checking the controller's TCP (module doc). Raises ConnectionLost, TCPMismatch."""
         receive = self._receive
         if receive is None:
             raise ConnectionLost(f"not connected to the robot ({self.last_error})")
         X_base_tcp = ur_pose_to_matrix(self._rpc(receive.getActualTCPPose))
         X_flange_tcp = ur_pose_to_matrix(self.settings.tcp_in_flange)
-        return np.asarray(self.settings.X_task_base, float) @ X_base_tcp @ np.linalg.inv(X_flange_tcp)
+        if self.monitor_only:
+            X_base_flange = nominal_flange_in_base(self._rpc(receive.getActualQ))
+            self._check_controller_tcp(np.linalg.inv(X_base_flange) @ X_base_tcp)
+        return X_base_tcp @ np.linalg.inv(X_flange_tcp)
+
+    def flange_in_task(self) -> np.ndarray:
+        """X_task_flange now (flange_in_base in the task frame). Raises ConnectionLost, TCPMismatch."""
+        return np.asarray(self.settings.X_task_base, float) @ self.flange_in_base()
+
+    def _check_controller_tcp(self, X_flange_tcp_controller):
+        s = self.settings
+        controller = matrix_to_ur_pose(X_flange_tcp_controller)
+        off_m, off_deg = pose_error(controller, list(s.tcp_in_flange))
+        if off_m > s.tcp_check_tolerance_m or off_deg > s.tcp_check_tolerance_deg:
+            raise TCPMismatch(
+                f"the controller's TCP differs from tcp_in_flange by {off_m * 1000:.0f} mm / {off_deg:.1f} deg "
+                f"(the pendant's TCP is ~{np.round(controller, 4).tolist()} from the joint angles, tcp_in_flange "
+                f"{[float(v) for v in s.tcp_in_flange]}): monitoring only, ur_arm cannot set it, so flange_pose is "
+                "not published and the camera cannot be calibrated; set the TCP on the pendant (Installation > "
+                "General > TCP) to tcp_in_flange, or correct ur_arm.tcp_in_flange in the cell file if the pendant's "
+                "is the gripper's (then restart)")
 
     def _tcp_force_n(self, receive) -> float:
         """|force| of the controller's TCP wrench (payload-compensated), N."""

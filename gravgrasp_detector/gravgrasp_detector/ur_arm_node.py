@@ -11,14 +11,21 @@ Serves the same interface as the Drake sim bridge, so the executor cannot tell t
 | `~/reconnect` | std_srvs/Trigger | drop the RTDE connection and build it again (never needed after a cleared stop: ur_arm restarts its control script itself) |
 | `emergency_stop` (sub) | std_msgs/Bool | `true` halts the running motion (stopL) and latches: every motion is refused until `~/arm` |
 | `~/arm` | std_srvs/SetBool | `true` clears the latch (motion allowed again), `false` latches it |
-| `flange_pose` | geometry_msgs/PoseStamped | the tool flange in `frame_id`, at `state_rate_hz` (calibrate_camera's robot poses) |
+| `flange_pose` | geometry_msgs/PoseStamped | the tool flange in `frame_id`, at `state_rate_hz` |
+| `flange_pose_base` | geometry_msgs/PoseStamped | the same in the robot base frame `base_frame_id` (calibrate_camera's robot poses: the result does not depend on the workspace origin) |
 | `camera_pose` | geometry_msgs/PoseStamped | only with `camera_in_flange` set (a camera on the wrist): its optical frame in `frame_id`, for the tsdf node; sensor-data QoS |
 
 A thin adapter around `ur_arm.URArm` (frames, limits, stop, timeouts; see there) over
 ur_rtde's RTDEControlInterface/RTDEReceiveInterface. The node keeps serving while the
 robot is unreachable: requests are answered with why, and it reconnects (or restarts the
 control script after a cleared protective or emergency stop) every `reconnect_period_s`.
-Once serving it logs ``ur_arm ready``. The failure paths, each with its test:
+Once serving it logs ``ur_arm ready``.
+
+Monitoring only (pendant in Local mode), a flange pose is published only while the
+controller's TCP, judged from the joint angles, is `tcp_in_flange` (ur_arm.py); otherwise
+one error line says what to set. `camera_in_base` and the `calibration_*` values are
+calibrate_camera's record of an eye-to-hand camera; the stack composes the tsdf node's
+`camera_pose` from them and `stack.workspace_origin_in_base` (cell_config.py). The failure paths, each with its test:
 gravgrasp_detector/doc/arm-adapter.md.
 """
 from __future__ import annotations
@@ -38,7 +45,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from .poses import PoseError, matrix_from_pose
 from .ros_interface import described, float_range, matrix_from_pose_msg, pose_stamped_from_matrix, run_node
-from .ur_arm import ConnectionLost, URArm
+from .ur_arm import ConnectionLost, TCPMismatch, URArm
 from .ur_arm_settings import FLANGE_TO_TCP_2F85_M, URArmSettings, xyz_yaw_to_matrix
 
 UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > System > Network), that the robot "
@@ -75,6 +82,8 @@ class URArmNode(Node):
         self.robot_ip = p("robot_ip", "", _text("IP address of the UR controller (pendant: Settings > System > Network)"))
         frequency = p("rtde_frequency_hz", -1.0, _float("RTDE frequency, Hz; -1 = the controller's (500 on e-Series)", -1.0, 500.0))
         self.frame_id = p("frame_id", "task", _text("frame of move_to_pose targets (the gravity-aligned task frame)"))
+        self.base_frame_id = p("base_frame_id", "base", _text(
+            "the robot base frame as the controller has it (ur_robot_driver's 'base'): flange_pose_base's frame"))
         base = p("base_xyz_yaw", [0.15, -0.45, 0.0, 0.0], _text(
             "robot base frame in the task frame: x, y, z [m], yaw [rad] (base mounted upright); "
             "the same numbers as execute's arm_base_xyz_yaw"))
@@ -105,6 +114,11 @@ class URArmNode(Node):
             contact_force_limit_n=p("contact_force_limit_n", defaults.contact_force_limit_n, _float(
                 "stop a motion when the TCP force's magnitude rises this much above its value when the motion "
                 "began, N (the sim's max_contact_force_n); 0 = off, leaving only the robot's own force limit", 0.0, 500.0)),
+            tcp_check_tolerance_m=p("tcp_check_tolerance_m", defaults.tcp_check_tolerance_m, _float(
+                "monitoring only: largest distance between the controller's TCP (from the joint angles) and "
+                "tcp_in_flange for which flange poses are published, m", 0.0005, 0.05)),
+            tcp_check_tolerance_deg=p("tcp_check_tolerance_deg", defaults.tcp_check_tolerance_deg, _float(
+                "monitoring only: the same for the TCP's orientation, deg", 0.05, 10.0)),
         )
         camera = p("camera_in_flange", [0.0] * 7, _text(
             "eye-in-hand camera: its optical frame in the flange frame [x, y, z (m), qx, qy, qz, qw] as "
@@ -118,6 +132,20 @@ class URArmNode(Node):
             except PoseError as e:
                 raise ValueError(f"camera_in_flange must be [x, y, z, qx, qy, qz, qw] with a unit quaternion, "
                                  f"got {list(camera)} ({e})") from None
+        camera_in_base = p("camera_in_base", [0.0] * 7, _text(
+            "eye-to-hand camera: its optical frame in the robot base frame [x, y, z (m), qx, qy, qz, qw] as "
+            "calibrate_camera writes it; the stack composes tsdf.camera_pose from it; all zeros = none"))
+        if any(camera) and any(camera_in_base):
+            raise ValueError("camera_in_flange and camera_in_base are both set: one camera, one calibration; keep "
+                             "the one calibrate_camera wrote last")
+        # calibrate_camera's record of the calibration: read by people, not by the code.
+        for name, default, text in (("calibration_date", "", "when calibrate_camera solved it (UTC)"),
+                                    ("calibration_mode", "", "eye_to_hand or eye_in_hand"),
+                                    ("calibration_views", 0, "views it used"),
+                                    ("calibration_residual_mm", 0.0, "RMS spread of the views, mm"),
+                                    ("calibration_residual_deg", 0.0, "RMS spread of the views, deg"),
+                                    ("calibration_reprojection_px", 0.0, "RMS board reprojection, px")):
+            p(name, default, _text(f"camera calibration record: {text}"))
         state_rate = p("state_rate_hz", 30.0, _float("flange_pose (and camera_pose) rate, Hz", 0.5, 250.0))
         self.reconnect_period_s = p("reconnect_period_s", 5.0, _float("retry period while the robot is unreachable, s", 0.1, 600.0))
         if connect is None:
@@ -138,6 +166,7 @@ class URArmNode(Node):
         self.create_subscription(Bool, "emergency_stop", self._on_estop, 10, callback_group=services)
         self.create_timer(self.reconnect_period_s, self._keep_connected, callback_group=MutuallyExclusiveCallbackGroup())
         self.pub_flange = self.create_publisher(PoseStamped, "flange_pose", 10)
+        self.pub_flange_base = self.create_publisher(PoseStamped, "flange_pose_base", 10)
         self.pub_camera = (self.create_publisher(PoseStamped, "camera_pose", qos_profile_sensor_data)
                            if self.X_flange_camera is not None else None)
         self.create_timer(1.0 / state_rate, self._publish_state, callback_group=MutuallyExclusiveCallbackGroup())
@@ -169,11 +198,16 @@ class URArmNode(Node):
             return
         stamp = self.get_clock().now().to_msg()
         try:
-            X = self.arm.flange_in_task()
+            X_base = self.arm.flange_in_base()
         except ConnectionLost as e:
             self._problem(f"{self.where}: {e}; reconnecting every {self.reconnect_period_s:g} s")
             return
+        except TCPMismatch as e:
+            self._problem(str(e))
+            return
+        X = self.arm.settings.X_task_base @ X_base
         self.pub_flange.publish(pose_stamped_from_matrix(X, stamp, self.frame_id))
+        self.pub_flange_base.publish(pose_stamped_from_matrix(X_base, stamp, self.base_frame_id))
         if self.pub_camera is not None:
             self.pub_camera.publish(pose_stamped_from_matrix(X @ self.X_flange_camera, stamp, self.frame_id))
 

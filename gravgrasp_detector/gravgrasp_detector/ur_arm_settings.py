@@ -40,6 +40,12 @@ class URArmSettings:
     # rises this much above its value when the motion began: the sim stand-in's
     # max_contact_force_n, the limit the benchmark's attempts ran under. 0 = off.
     contact_force_limit_n: float = 60.0
+    # Monitoring only (no setTcp): the controller's TCP, from the nominal kinematics of the
+    # joint angles, must be within this of tcp_in_flange for a flange pose to be given. A
+    # wrong TCP is centimetres or a turn off; the nominal kinematics are millimetres off the
+    # robot's calibrated ones, so not tighter.
+    tcp_check_tolerance_m: float = 0.005
+    tcp_check_tolerance_deg: float = 1.0
 
     def check(self):
         """Raise ValueError naming the first bad setting."""
@@ -53,7 +59,7 @@ class URArmSettings:
             raise ValueError(f"protective box: workspace_min_m {list(lo)} must be below workspace_max_m {list(hi)} on every axis (3 numbers each, m)")
         for name in ("default_speed_mps", "max_speed_mps", "acceleration_mps2", "stop_deceleration_mps2",
                      "call_timeout_s", "connect_timeout_s", "position_tolerance_m", "orientation_tolerance_deg",
-                     "poll_period_s", "watchdog_period_s"):
+                     "poll_period_s", "watchdog_period_s", "tcp_check_tolerance_m", "tcp_check_tolerance_deg"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be > 0, got {value}")

@@ -232,6 +232,7 @@ def test_unreachable_or_silent_controller_at_connect():
 def test_local_mode_watches_the_arm_but_never_moves_it():
     arm, ur = make_arm()
     ur.control_unavailable = True
+    ur.controller_tcp = [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]  # the pendant's TCP is the 2F-85's
     status = arm.connect()
     assert "monitoring only" in status and "enable remote control" in status, status
     assert arm.receiving and not arm.connected

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from fake_rtde import FakeControl, FakeURController
-from gravgrasp_detector.ur_arm import ConnectionLost
+from gravgrasp_detector.ur_arm import ConnectionLost, TCPMismatch
+from gravgrasp_detector.ur_controller import ur_pose_to_matrix
+from gravgrasp_detector.ur_kinematics import flange_in_base
 from test_ur_arm import _wait, make_arm, tcp
 
 
@@ -178,3 +180,51 @@ def test_stopl_without_a_running_script_does_nothing_in_the_stand_in():
     ur.program_running = False
     control.stopL(2.0)
     assert ur._motion is not None
+
+
+def test_monitor_only_refuses_flange_poses_when_the_pendants_tcp_is_not_tcp_in_flange():
+    """Pendant in Local mode: setTcp cannot be sent (and getTCPOffset, a control-interface
+    call, cannot be read), so the controller's TCP is judged from the joint angles."""
+    arm, ur = make_arm()
+    ur.control_unavailable = True
+    arm.connect()
+    assert arm.monitor_only
+    with pytest.raises(TCPMismatch) as refused:  # the pendant's default TCP: the flange itself
+        arm.flange_in_base()
+    message = str(refused.value)
+    print(f"\n{message}")
+    assert message.startswith("the controller's TCP differs from tcp_in_flange by 156 mm / 0.0 deg")
+    assert "set the TCP on the pendant (Installation > General > TCP) to tcp_in_flange" in message
+    assert "correct ur_arm.tcp_in_flange in the cell file" in message
+    ur.controller_tcp = [0.0, 0.0, 0.1558, 0.0, 0.0, 1.5708]  # fingers turned 90 deg: refused too
+    with pytest.raises(TCPMismatch, match="by 0 mm / 90.0 deg"):
+        arm.flange_in_base()
+    ur.controller_tcp = [0.0, 0.0, 0.1538, 0.0, 0.0, 0.0]  # 2 mm: within the nominal kinematics' error
+    arm.flange_in_base()
+    ur.controller_tcp = [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]  # set on the pendant: no restart needed
+    X = arm.flange_in_base()
+    np.testing.assert_allclose(X[:3, 3], [0.4, 0.0, 0.4 + 0.1558], atol=1e-9)
+
+
+def test_monitor_only_judges_the_tcp_by_the_ur5e_kinematics_of_getActualQ():
+    arm, ur = make_arm()
+    ur.control_unavailable = True
+    ur.controller_tcp = [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]
+    ur.tcp_pose = [0.35, 0.2, 0.3, 2.0, 1.0, 0.5]
+    arm.connect()
+    arm.flange_in_base()
+    assert len(ur.called("getActualQ")) == 1
+    q = ur.joint_angles()  # the fake's angles: FK(q) @ controller TCP is the TCP it reports
+    np.testing.assert_allclose(flange_in_base(q) @ ur_pose_to_matrix(ur.controller_tcp),
+                               ur_pose_to_matrix(ur.tcp_pose), atol=1e-7)
+    ur.joint_angles = lambda: [v + 0.02 for v in q]  # angles that put the flange elsewhere: refused
+    with pytest.raises(TCPMismatch):
+        arm.flange_in_base()
+
+
+def test_with_control_the_tcp_is_set_not_judged():
+    arm, ur = make_arm()
+    arm.connect()
+    X = arm.flange_in_base()
+    assert ur.called("setTcp") and ur.called("getActualQ") == []
+    np.testing.assert_allclose(X[:3, 3], [0.4, 0.0, 0.4 + 0.1558], atol=1e-9)

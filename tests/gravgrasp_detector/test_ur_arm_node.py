@@ -195,3 +195,34 @@ def test_installed_executable_without_a_robot(ros_process, ros_node):
     answer = call_service(ros_node, move, move_request(0.15, 0.15, 0.2), timeout_s=30, resend_s=5.0)  # no robot: safe to repeat
     assert not answer.success and answer.message.startswith("arm connection lost"), answer.message
     assert node.alive()
+
+
+def test_flange_pose_base_only_while_the_pendants_tcp_is_tcp_in_flange(ros_node):
+    """Pendant in Local mode (monitoring only): calibrate_camera's robot poses come in the
+    base frame, and none while the controller's TCP is not tcp_in_flange."""
+    ur = FakeURController()
+    ur.control_unavailable = True
+    arm_node = URArmNode(connect=ur.connect, parameter_overrides=[
+        Parameter("reconnect_period_s", value=0.2), Parameter("base_xyz_yaw", value=[0.15, -0.45, 0.0, 0.0])])
+    seen = {"base": [], "task": []}
+    ros_node.create_subscription(PoseStamped, "flange_pose_base", seen["base"].append, 10)
+    ros_node.create_subscription(PoseStamped, "flange_pose", seen["task"].append, 10)
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(arm_node)
+    executor.add_node(ros_node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        assert wait_until(lambda: arm_node.arm.receiving and len(ur.called("getActualQ")) > 5, 15)
+        assert seen["base"] == [] and seen["task"] == [], "a wrong TCP gives no flange pose"
+        ur.controller_tcp = [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]  # set on the pendant
+        assert wait_until(lambda: seen["base"] and seen["task"], 15), "no flange pose once the TCP is right"
+        base, task = seen["base"][-1], seen["task"][-1]
+        assert base.header.frame_id == "base" and task.header.frame_id == "task"
+        p, t = base.pose.position, task.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], [0.4, 0.0, 0.4 + 0.1558], atol=1e-9)
+        np.testing.assert_allclose([t.x, t.y, t.z], [0.4 + 0.15, -0.45, 0.4 + 0.1558], atol=1e-9)
+    finally:
+        executor.shutdown()
+        arm_node.close()
+        arm_node.destroy_node()

@@ -38,7 +38,12 @@ Faults are switched on by attributes:
     refuse_connect            the constructor raises RuntimeError (robot unreachable)
     control_unavailable       the pendant in Local mode: only the receive interface connects,
                               and a re-uploaded script is not run
-    controller_tcp            the TCP offset the controller holds (the pendant's, until setTcp)
+    controller_tcp            the TCP offset the controller holds (the pendant's, until setTcp);
+                              a test sets it to give the pendant a TCP other than tcp_in_flange
+
+getActualQ answers joint angles consistent with the TCP pose: the flange is
+tcp_pose @ inv(controller_tcp), and the angles are the nominal UR5e inverse kinematics of
+it (ur_kinematics), so FK(q) @ controller_tcp is the TCP pose a real controller reports.
 
 And read back: `watchdog_tripped` (the watchdog stopped the script), `motion_running`,
 `clear_protective_stop()` (what unlocking on the pendant does).
@@ -49,6 +54,10 @@ import threading
 import time
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from gravgrasp_detector.ur_kinematics import flange_in_base
 
 RUNNING, NORMAL, REDUCED, PROTECTIVE_STOP, ROBOT_EMERGENCY_STOP, SYSTEM_EMERGENCY_STOP = 7, 1, 2, 3, 7, 6
 
@@ -85,6 +94,7 @@ class FakeURController:
         self._motion = None          # (start, target, t0, duration_s)
         self._progress = -1          # ur_rtde: toggles -1/-2 between async operations, >= 0 while running
         self._last_end = -1
+        self._q = (None, np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0]))  # (for which flange, joint angles)
 
     # -- what the adapter's connect() gets ---------------------------------------------
 
@@ -122,6 +132,18 @@ class FakeURController:
         """Unlock on the pendant: safety NORMAL; the control script stays ended."""
         with self._lock:
             self.safety_mode = NORMAL
+
+    def joint_angles(self) -> list:
+        """The UR5e's joint angles for the flange at tcp_pose @ inv(controller_tcp)."""
+        with self._lock:
+            X = _matrix(self.tcp_pose) @ np.linalg.inv(_matrix(self.controller_tcp))
+            key = tuple(np.round(X, 9).ravel())
+            if self._q[0] != key:  # solved from the last answer: the arm moves continuously
+                fit = least_squares(lambda q: (flange_in_base(q) - X)[:3].ravel(), self._q[1], xtol=1e-12, ftol=1e-12)
+                if np.abs(flange_in_base(fit.x) - X).max() > 1e-7:
+                    raise AssertionError(f"fake_rtde: no UR5e joint angles for the flange {X[:3, 3]}: out of reach")
+                self._q = (key, np.mod(fit.x + np.pi, 2 * np.pi) - np.pi)  # within the joints' range
+            return [float(v) for v in self._q[1]]
 
     # -- internals ----------------------------------------------------------------------
 
@@ -354,6 +376,11 @@ class FakeReceive:
         self.ur._update()
         return list(self.ur.tcp_pose)
 
+    def getActualQ(self):
+        self.ur._record("getActualQ", ())
+        self.ur._update()
+        return self.ur.joint_angles()
+
     def getRobotMode(self):
         self.ur._record("getRobotMode", ())
         self.ur._update()
@@ -367,3 +394,10 @@ class FakeReceive:
     def getTargetSpeedFraction(self):
         self.ur._record("getTargetSpeedFraction", ())
         return self.ur.speed_slider
+
+
+def _matrix(ur_pose) -> np.ndarray:
+    X = np.eye(4)
+    X[:3, :3] = Rotation.from_rotvec(ur_pose[3:6]).as_matrix()
+    X[:3, 3] = ur_pose[:3]
+    return X
