@@ -18,6 +18,13 @@ Derived: `workspace_origin_in_base` -> `execute.arm_base_xyz_yaw` and
 `ur_arm.base_xyz_yaw` (the robot base in the task frame, its inverse), so the one
 measurement feeds both; `object_mass_kg` -> `detect.min_score_n`. Giving a derived
 parameter directly as well is a conflict, refused with a sentence.
+
+The camera: calibrate_camera stores a fixed (eye-to-hand) camera in the robot base frame,
+`ur_arm.camera_in_base`, which no re-measuring of the workspace origin changes; the stack
+composes the tsdf node's `camera_pose` (task frame) from it and `workspace_origin_in_base`
+at start-up. A file with the old form, `tsdf.camera_pose` written by hand or by an older
+calibrate_camera, still works, with one warning saying how to convert it
+(`convert_camera_pose`, run by `calibrate_camera -p convert:=true`).
 """
 from __future__ import annotations
 
@@ -27,6 +34,9 @@ import pathlib
 
 import numpy as np
 import yaml
+from scipy.spatial.transform import Rotation
+
+from .ur_arm_settings import xyz_yaw_to_matrix  # X_base_task from workspace_origin_in_base
 
 G_MPS2 = 9.81
 ARM_ADAPTERS = ("service", "ur")
@@ -90,11 +100,51 @@ def base_in_task(workspace_origin_in_base) -> list[float]:
     return [-(c * x + s * y), -(-s * x + c * y), -z, -yaw]
 
 
+def _pose_matrix(name: str, values) -> np.ndarray:
+    values = [float(v) for v in values]
+    if len(values) != 7 or not all(math.isfinite(v) for v in values) or abs(np.linalg.norm(values[3:]) - 1) > 1e-3:
+        raise CellConfigError(f"{name} must be [x, y, z (m), qx, qy, qz, qw] with a unit quaternion, got {values}")
+    X = np.eye(4)
+    X[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
+    X[:3, 3] = values[:3]
+    return X
+
+
+def _xyz_quat(X) -> list:
+    return [round(float(v), 6) for v in (*X[:3, 3], *Rotation.from_matrix(X[:3, :3]).as_quat(canonical=True))]
+
+
+def camera_in_task(workspace_origin_in_base, camera_in_base) -> list:
+    """tsdf.camera_pose (task frame) from the camera in the base frame."""
+    X_base_camera = _pose_matrix("ur_arm.camera_in_base", camera_in_base)
+    return _xyz_quat(np.linalg.inv(xyz_yaw_to_matrix(workspace_origin_in_base)) @ X_base_camera)
+
+
+def convert_camera_pose(sections: dict) -> list:
+    """ur_arm.camera_in_base from an old-form tsdf.camera_pose and the file's
+    workspace_origin_in_base (right only if that origin is the one it was calibrated with)."""
+    origin = list(sections.get("stack", {}).get("workspace_origin_in_base", []))
+    pose = sections.get("tsdf", {}).get("camera_pose")
+    if pose is None:
+        raise CellConfigError("the cell file has no tsdf.camera_pose: nothing to convert")
+    if len(origin) != 4 or not any(origin):
+        raise CellConfigError("the cell file has no stack.workspace_origin_in_base: without it the task-frame "
+                              "camera_pose cannot be put in the base frame; calibrate again (bring-up step 5)")
+    return _xyz_quat(xyz_yaw_to_matrix(origin) @ _pose_matrix("tsdf.camera_pose", pose))
+
+
+CONVERT_HINT = ("convert it once, while stack.workspace_origin_in_base is still the one it was calibrated with: "
+                "ros2 run gravgrasp_detector calibrate_camera --ros-args -p convert:=true -p cell_file:={file} "
+                "(writes ur_arm.camera_in_base, removes tsdf.camera_pose); if the origin was measured again "
+                "since, calibrate again (README bring-up step 5)")
+
+
 @dataclasses.dataclass
 class StackPlan:
     arm_adapter: str
     overrides: list            # ['-p', 'node:name:=value', ...] appended to the ROS arguments
     notes: list                # one line each, logged at start
+    warnings: list = dataclasses.field(default_factory=list)  # one line each, logged as warnings
 
 
 def _fmt(value) -> str:
@@ -103,9 +153,10 @@ def _fmt(value) -> str:
     return repr(float(value))
 
 
-def plan(stack: dict, sections: dict) -> StackPlan:
+def plan(stack: dict, sections: dict, cell_file: str = "cell.yaml") -> StackPlan:
     """Derived parameters and conflicts from the stack section's values (as declared by
-    the stack node: arm_adapter, workspace_origin_in_base, object_mass_kg, score_safety_factor)."""
+    the stack node: arm_adapter, workspace_origin_in_base, object_mass_kg, score_safety_factor)
+    and the file's sections; `cell_file` names the file in what to run."""
     adapter = stack["arm_adapter"]
     if adapter not in ARM_ADAPTERS:
         raise CellConfigError(f"stack.arm_adapter is {adapter!r}: use 'service' (another process serves move_to_pose, "
@@ -123,6 +174,7 @@ def plan(stack: dict, sections: dict) -> StackPlan:
         overrides += ["-p", f"execute:arm_base_xyz_yaw:={_fmt(base)}", "-p", f"ur_arm:base_xyz_yaw:={_fmt(base)}"]
         notes.append(f"workspace origin {origin} in the base frame -> robot base {np.round(base, 4).tolist()} "
                      "(x, y, z, yaw) in the task frame for execute and ur_arm")
+    warnings = _camera(origin, sections, overrides, notes, cell_file)
     mass, factor = float(stack["object_mass_kg"]), float(stack["score_safety_factor"])
     if mass > 0:
         if "min_score_n" in sections.get("detect", {}):
@@ -134,7 +186,35 @@ def plan(stack: dict, sections: dict) -> StackPlan:
         notes.append(f"object mass {mass:g} kg x {G_MPS2} m/s^2 x {factor:g} -> detect.min_score_n {min_score:.2f} N")
     elif mass < 0:
         raise CellConfigError(f"stack.object_mass_kg is {mass}: give the heaviest object's mass in kg (0 = no threshold from it)")
-    return StackPlan(adapter, overrides, notes)
+    return StackPlan(adapter, overrides, notes, warnings)
+
+
+def _camera(origin, sections, overrides, notes, cell_file) -> list:
+    """tsdf.camera_pose composed from ur_arm.camera_in_base; the warnings for the old form."""
+    tsdf, ur = sections.get("tsdf", {}), sections.get("ur_arm", {})
+    camera = list(ur.get("camera_in_base", []))
+    if not any(camera):
+        if "camera_pose" in tsdf and tsdf.get("camera_pose_source") == "parameter":
+            return ["tsdf.camera_pose is a fixed camera in the task frame (the old form): a re-measured "
+                    "stack.workspace_origin_in_base would leave it wrong; " + CONVERT_HINT.format(file=cell_file)]
+        return []
+    if not any(origin):
+        raise CellConfigError("ur_arm.camera_in_base (the camera in the robot base frame) needs "
+                              "stack.workspace_origin_in_base to place it in the task frame: measure it (bring-up step 4)")
+    if "camera_pose" in tsdf:
+        raise CellConfigError("ur_arm.camera_in_base and tsdf.camera_pose both place the camera: delete "
+                              "tsdf.camera_pose (the stack composes it from camera_in_base and the workspace origin)")
+    if tsdf.get("camera_pose_source", "parameter") != "parameter":
+        raise CellConfigError(f"ur_arm.camera_in_base is a fixed camera but tsdf.camera_pose_source is "
+                              f"{tsdf['camera_pose_source']!r}: set it to 'parameter' (or delete camera_in_base "
+                              "for a camera on the wrist)")
+    pose = camera_in_task(origin, camera)
+    overrides += ["-p", "tsdf:camera_pose_source:=parameter", "-p", f"tsdf:camera_pose:={_fmt(pose)}"]
+    when = ur.get("calibration_date")
+    notes.append(f"camera {[round(float(v), 4) for v in camera]} in the base frame"
+                 f"{' (calibrated ' + str(when) + ')' if when else ''} -> tsdf.camera_pose "
+                 f"{[round(v, 4) for v in pose]} in the task frame")
+    return []
 
 
 def check_consistency(execute_params: dict, ur_params: dict | None) -> None:

@@ -15,6 +15,11 @@ One parameter file describes the cell (samples: share/gravgrasp_detector/cells/)
 | `score_safety_factor` | 1.5 |
 | `check_parameters` | true: a parameter in the file that its node does not declare (a typo) stops the start |
 
+A fixed camera's calibration, `ur_arm.camera_in_base` (robot base frame), becomes the
+tsdf node's `camera_pose` in the task frame through `workspace_origin_in_base`, here at
+start-up; a file with the old `tsdf.camera_pose` form starts with one warning saying how
+to convert it.
+
 Parameters also go to a node by name on the command line: `--ros-args -p
 detect:model_path:=models/x.pt -p execute:gripper_port:=/dev/ttyUSB0`.
 """
@@ -63,9 +68,10 @@ def main(args=None):
     args = list(sys.argv if args is None else args)
     nodes = []
     try:
-        sections = load_sections(params_files(args))
+        files = params_files(args)
+        sections = load_sections(files)
         stack = stack_settings(args)
-        cell = plan(stack, sections)
+        cell = plan(stack, sections, str(files[-1]) if files else "cell.yaml")
         # Derived parameters go last on the command line, where they win over the file.
         rclpy.init(args=args + (["--ros-args"] + cell.overrides if cell.overrides else []))
         makers = [TSDFNode, DetectNode, ExecuteNode]
@@ -94,6 +100,8 @@ def main(args=None):
     log = nodes[0].get_logger()
     for note in cell.notes:
         log.info(f"cell: {note}")
+    for warning in cell.warnings:
+        log.warn(f"cell: {warning}")
     port = execute.get_parameter("gripper_port").value
     if not os.path.exists(port):
         execute.get_logger().warn(

@@ -11,8 +11,11 @@ from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from std_srvs.srv import SetBool
 
-from gravgrasp_detector.cell_config import (CellConfigError, base_in_task, check_consistency, load_sections,
-                                            params_files, plan, unknown_parameters)
+from scipy.spatial.transform import Rotation
+
+from gravgrasp_detector.camera_calibration import matrix_to_xyz_quat, solve_hand_eye, xyz_quat_to_matrix
+from gravgrasp_detector.cell_config import (CellConfigError, base_in_task, camera_in_task, check_consistency,
+                                            convert_camera_pose, load_sections, params_files, plan, unknown_parameters)
 from gravgrasp_detector.ur_arm_settings import xyz_yaw_to_matrix
 from ros_testing import BackgroundSpin, wait_until
 
@@ -55,6 +58,89 @@ def test_samples_parse_and_name_only_real_parameters():
                               {"execute": {"gripper_port"}}) == ["execute.gripper_prot"]
 
 
+def _pose_apart(a, b):
+    A, B = xyz_quat_to_matrix(a), xyz_quat_to_matrix(b)
+    return (float(np.linalg.norm(A[:3, 3] - B[:3, 3])),
+            float(np.degrees(Rotation.from_matrix(A[:3, :3].T @ B[:3, :3]).magnitude())))
+
+
+def _eye_to_hand_poses(X_base_camera, n=8, seed=5):
+    """Flange poses in the base frame and the board poses the camera sees (board on the flange)."""
+    rng = np.random.default_rng(seed)
+    X_flange_board = xyz_quat_to_matrix([0.0, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0])
+    flanges, boards = [], []
+    for _ in range(n):
+        F = np.eye(4)
+        F[:3, :3] = Rotation.from_rotvec(rng.uniform(-0.4, 0.4, 3)).as_matrix() @ np.diag([1.0, -1.0, -1.0])
+        F[:3, 3] = [0.0, 0.6, 0.3] + rng.uniform(-0.1, 0.1, 3)
+        flanges.append(F)
+        boards.append(np.linalg.inv(X_base_camera) @ F @ X_flange_board)
+    return flanges, boards
+
+
+def test_camera_in_base_gives_the_old_task_pose_and_survives_a_remeasured_origin():
+    X_base_camera = xyz_quat_to_matrix([0.0, 0.15, 0.65] + list(Rotation.from_euler("x", -135, degrees=True).as_quat()))
+    flanges, boards = _eye_to_hand_poses(X_base_camera)
+    origin = [-0.15, 0.45, 0.0, 0.1]
+    X_base_task = xyz_yaw_to_matrix(origin)
+    # The old way: flange poses in the task frame, the result stored as tsdf.camera_pose.
+    old = matrix_to_xyz_quat(solve_hand_eye([np.linalg.inv(X_base_task) @ F for F in flanges], boards).X)
+    # Now: flange poses in the base frame, the result stored as ur_arm.camera_in_base.
+    camera_in_base = matrix_to_xyz_quat(solve_hand_eye(flanges, boards).X)
+    sections = {"ur_arm": {"camera_in_base": camera_in_base}}
+    cell = plan({**STACK, "workspace_origin_in_base": origin}, sections)
+    composed = [float(v) for v in re.search(r"tsdf:camera_pose:=\[(.*?)\]", " ".join(cell.overrides)).group(1).split(",")]
+    assert "-p tsdf:camera_pose_source:=parameter" in " ".join(cell.overrides)
+    assert any("tsdf.camera_pose" in n for n in cell.notes) and cell.warnings == []
+    mm, deg = _pose_apart(composed, old)
+    assert mm < 1e-5 and deg < 1e-3, "the same origin: the same camera pose as before"
+    # The workspace origin measured again (2 cm and 3 deg off): the composed pose follows it.
+    remeasured = [-0.13, 0.44, 0.0, 0.1 + math.radians(3)]
+    truth = matrix_to_xyz_quat(np.linalg.inv(xyz_yaw_to_matrix(remeasured)) @ X_base_camera)
+    mm, deg = _pose_apart(camera_in_task(remeasured, camera_in_base), truth)
+    assert mm < 1e-5 and deg < 1e-3
+    stale_m, stale_deg = _pose_apart(old, truth)
+    print(f"\nthe old task-frame pose after re-measuring: {stale_m * 1000:.0f} mm / {stale_deg:.1f} deg off")
+    assert stale_m > 0.02, "what the old form left wrong"
+
+
+def test_old_form_camera_pose_is_read_with_one_warning():
+    old = {"tsdf": {"camera_pose_source": "parameter", "camera_pose": [0.15, -0.30, 0.65, -0.9239, 0.0, 0.0, 0.3827]},
+           "stack": {"workspace_origin_in_base": [-0.15, 0.45, 0.0, 0.0]}}
+    cell = plan({**STACK, "workspace_origin_in_base": [-0.15, 0.45, 0.0, 0.0]}, old, "/home/lab/cell.yaml")
+    assert len(cell.warnings) == 1, cell.warnings
+    print(f"\n{cell.warnings[0]}")
+    assert "tsdf.camera_pose is a fixed camera in the task frame (the old form)" in cell.warnings[0]
+    assert ("ros2 run gravgrasp_detector calibrate_camera --ros-args -p convert:=true "
+            "-p cell_file:=/home/lab/cell.yaml") in cell.warnings[0]
+    assert "tsdf:camera_pose" not in " ".join(cell.overrides), "the old pose is used as it is"
+    # Converted, the file composes the same pose again.
+    converted = convert_camera_pose(old)
+    mm, deg = _pose_apart(camera_in_task([-0.15, 0.45, 0.0, 0.0], converted), old["tsdf"]["camera_pose"])
+    assert mm < 1e-6 and deg < 1e-3
+    # The sample cell file is in the new form, and composes the pose it had in the old one.
+    sample = load_sections([UR])
+    cell = plan({**STACK, "workspace_origin_in_base": sample["stack"]["workspace_origin_in_base"]}, sample)
+    composed = [float(v) for v in re.search(r"tsdf:camera_pose:=\[(.*?)\]", " ".join(cell.overrides)).group(1).split(",")]
+    mm, deg = _pose_apart(composed, old["tsdf"]["camera_pose"])
+    assert cell.warnings == [] and mm < 1e-6 and deg < 1e-3
+
+
+def test_camera_in_base_conflicts_are_refused():
+    camera = {"camera_in_base": [0.0, 0.15, 0.65, 0.0, 0.0, 0.0, 1.0]}
+    origin = {**STACK, "workspace_origin_in_base": [0.1, 0.2, 0.0, 0.0]}
+    with pytest.raises(CellConfigError, match="needs stack.workspace_origin_in_base"):
+        plan(STACK, {"ur_arm": camera})
+    with pytest.raises(CellConfigError, match="both place the camera: delete tsdf.camera_pose"):
+        plan(origin, {"ur_arm": camera, "tsdf": {"camera_pose": [0.0] * 6 + [1.0]}})
+    with pytest.raises(CellConfigError, match="camera_pose_source is 'topic'"):
+        plan(origin, {"ur_arm": camera, "tsdf": {"camera_pose_source": "topic"}})
+    with pytest.raises(CellConfigError, match="unit quaternion"):
+        plan(origin, {"ur_arm": {"camera_in_base": [0.0, 0.15, 0.65, 0.0, 0.0, 0.0, 2.0]}})
+    with pytest.raises(CellConfigError, match="no stack.workspace_origin_in_base"):
+        convert_camera_pose({"tsdf": {"camera_pose": [0.0] * 6 + [1.0]}})
+
+
 @pytest.fixture
 def spin(ros_node):
     spinner = BackgroundSpin(ros_node)
@@ -76,6 +162,7 @@ def test_ur_sample_starts_until_it_needs_the_robot(ros_process, ros_node, spin):
     print("\n" + "\n".join([unreachable, port] + notes))
     assert any("detect.min_score_n 7.36 N" in n for n in notes) and any("robot base" in n for n in notes)
     assert "camera pose from parameter" in stack.output()
+    assert any("in the base frame -> tsdf.camera_pose" in n for n in notes) and "old form" not in stack.output()
     move = MoveToPose.Request(speed_mps=0.05)
     move.target.header.frame_id = "task"
     move.target.pose.position.x, move.target.pose.position.y, move.target.pose.position.z = 0.15, 0.15, 0.2
