@@ -223,6 +223,24 @@ def summarize(records: list, settings) -> dict:
     return summary
 
 
+def markdown(summary: dict) -> str:
+    """The summary as the tables of sim_bridge/doc/benchmark-speed.md."""
+    lines = [f"{summary['rounds']} rounds, {summary['attempts']} attempts; the v4 replay gave the committed "
+             f"outcome in {summary['replay_matched_recorded']} of them.", ""]
+    for name, s in summary["settings"].items():
+        lines += [f"**{name}** ({', '.join(f'{k} {v}' for k, v in EXECUTION_SETTINGS[name].items())}): "
+                  f"outcome agreement **{s['outcome_agreement']}**, success agreement {s['success_agreement']}, "
+                  f"CPU {s['attempt_cpu_ratio']} of v4's on the same attempts, simulated time "
+                  f"{s['attempt_sim_s_new']} s against {s['attempt_sim_s_old']} s.", "",
+                  "| method @ kg | attempts | successes v4 | successes new |", "|---|---|---|---|"]
+        for key, m in sorted(s["by_method_weight"].items()):
+            lines.append(f"| {key} | {m['attempts']} | {m['old_successes']} | {m['new_successes']} |")
+        lines += ["", "| round | attempt | v4 | new |", "|---|---|---|---|"]
+        lines += [f"| {d['round']} | {d['attempt']} | {d['old']} | {d['new']} |" for d in s["differing"]] or ["| (none) | | | |"]
+        lines.append("")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -232,6 +250,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--max-rounds", type=int, help="study only the first N rounds of the plan")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--report", action="store_true", help="run nothing: summarize the rounds finished so far")
     args = p.parse_args(argv)
     settings = tuple(s for s in args.settings.split(",") if s)
     try:
@@ -253,16 +272,14 @@ def main(argv=None) -> int:
         else:
             atomic_files.save_json(path(sr), result)
 
-    pending = [sr for sr in rounds if not path(sr).exists()]
+    pending = [] if args.report else [sr for sr in rounds if not path(sr).exists()]
     if pending:
         with make_executor(args.workers) as ex:
             run_tasks(ex, _guarded, pending, on_result, desc="rounds", progress=not args.no_progress)
     records = [json.loads(path(sr).read_text()) for sr in rounds if path(sr).exists()]
     summary = summarize(records, settings)
     atomic_files.save_json(out.parent / f"{out.name}.json", summary)
-    for name, s in summary["settings"].items():
-        print(f"{name}: {s['attempts']} attempts, outcome agreement {s['outcome_agreement']}, success agreement "
-              f"{s['success_agreement']}, CPU ratio {s['attempt_cpu_ratio']}; differing: {len(s['differing'])}")
+    print(markdown(summary))
     agreements = [s["outcome_agreement"] for s in summary["settings"].values() if s["outcome_agreement"] is not None]
     print(f"outcome_agreement={min(agreements) if agreements else float('nan')}")
     return 0
