@@ -7,21 +7,28 @@
     ros2 run gravgrasp_detector calibrate_camera --ros-args -p bag:=calib_bag -p cell_file:=cell.yaml
     # the board to print
     ros2 run gravgrasp_detector calibrate_camera --ros-args -p board_png:=board.png
+    # a cell file of the old form (tsdf.camera_pose, task frame) -> ur_arm.camera_in_base
+    ros2 run gravgrasp_detector calibrate_camera --ros-args -p convert:=true -p cell_file:=cell.yaml
 
 Inputs: `image_topic` (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8, mono16),
 `camera_info_topic` (its CameraInfo: K and plumb_bob D), `pose_topic`
-(geometry_msgs/PoseStamped, the flange in the task frame: ur_arm's `flange_pose`).
-Images are paired with the flange pose by header stamp, only while the arm rests
-(calibration_capture.py). After `views` views (or `~/solve`, std_srvs/Trigger, live) it
-solves (camera_calibration.py), prints the result and residuals, and writes them into
-`cell_file`: eye_to_hand -> tsdf `camera_pose` (camera_pose_source parameter);
-eye_in_hand -> ur_arm `camera_in_flange` (tsdf camera_pose_source topic). Exit 0 on
-success; 2 with one sentence on bad input (board not found in any view, too few views,
-degenerate motions, unreadable bag).
+(geometry_msgs/PoseStamped, the flange in the robot base frame: ur_arm's
+`flange_pose_base`). Images are paired with the flange pose by header stamp, only while
+the arm rests (calibration_capture.py). After `views` views (or `~/solve`,
+std_srvs/Trigger, live) it solves (camera_calibration.py), prints the result and
+residuals, and writes into `cell_file` the result with its record (`ur_arm.calibration_date`,
+`_mode`, `_views`, `_residual_mm`, `_residual_deg`, `_reprojection_px`):
+eye_to_hand -> `ur_arm.camera_in_base`, the camera in the robot base frame, which the
+stack turns into tsdf `camera_pose` through `stack.workspace_origin_in_base` at start-up
+(so re-measuring the workspace origin keeps the calibration); eye_in_hand ->
+`ur_arm.camera_in_flange` (tsdf camera_pose_source topic). Exit 0 on success; 2 with one
+sentence on bad input (board not found in any view, too few views, degenerate motions,
+unreadable bag).
 """
 from __future__ import annotations
 
 import datetime
+import math
 import pathlib
 import sys
 import threading
@@ -39,6 +46,7 @@ from std_srvs.srv import Trigger
 
 from . import cell_file
 from .bag_replay import read_bag
+from .cell_config import CellConfigError, convert_camera_pose, load_sections
 from .calibration_capture import CaptureSettings, StillPoseCapture
 from .camera_calibration import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
 from .poses import PoseError
@@ -77,11 +85,14 @@ class CalibrateNode(Node):
         self.cell_file = p("cell_file", "", "parameter file to write the result into ('' = print only)")
         self.bag = p("bag", "", "rosbag2 directory to read instead of live topics ('' = live)")
         self.board_png = p("board_png", "", "write the board as a PNG to print, then exit")
+        self.convert = p("convert", False, "convert cell_file's old tsdf.camera_pose (task frame) to "
+                                           "ur_arm.camera_in_base, then exit")
         self.topics = {
             "image": p("image_topic", "image", "camera image (the stream whose CameraInfo is given)"),
             "info": p("camera_info_topic", "camera_info", "that image's CameraInfo"),
-            "pose": p("pose_topic", "flange_pose", "flange pose in the task frame (ur_arm's flange_pose)")}
-        self.frame_id = p("frame_id", "task", "frame the flange poses (and the result) are in")
+            "pose": p("pose_topic", "flange_pose_base", "flange pose in the robot base frame (ur_arm's flange_pose_base)")}
+        self.frame_id = p("frame_id", "base", "the robot base frame, which the flange poses (and an eye-to-hand "
+                                              "result) are in")
         self.capture = StillPoseCapture(CaptureSettings(
             still_s=p("still_s", 0.5, "the arm must rest this long before an image counts, s"),
             min_move_mm=p("min_move_mm", 20.0, "views must be this far apart, mm (or min_turn_deg)"),
@@ -104,7 +115,7 @@ class CalibrateNode(Node):
     def on_pose(self, msg: PoseStamped):
         if msg.header.frame_id not in ("", self.frame_id):
             self._say(f"flange pose is in frame {msg.header.frame_id!r}, expected {self.frame_id!r}: "
-                      "publish it in the task frame (ur_arm's flange_pose is)")
+                      "give the flange in the robot base frame (ur_arm's flange_pose_base)")
             return
         try:
             X_task_flange = matrix_from_pose_msg(msg.pose)
@@ -165,16 +176,46 @@ class CalibrateNode(Node):
 
     def write(self, result: HandEyeResult):
         stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%MZ")
-        note = (f"calibrate_camera {stamp}: {result.mode}, {result.views} views, residual "
-                f"{result.residual_mm:.2f} mm / {result.residual_deg:.3f} deg, reprojection {result.reprojection_px:.2f} px")
         pose = [round(v, 6) for v in result.pose_xyz_quat]
-        if result.mode == "eye_to_hand":
-            updates = {"tsdf": {"camera_pose_source": "parameter", "camera_pose": pose}}
-        else:
-            updates = {"ur_arm": {"camera_in_flange": pose}, "tsdf": {"camera_pose_source": "topic"}}
-        cell_file.write_parameters(self.cell_file, updates, note)
-        self.get_logger().info(f"written to {self.cell_file}: " + "; ".join(
-            f"{node}.{name}" for node, values in updates.items() for name in values))
+        fixed = result.mode == "eye_to_hand"
+        name, other = ("camera_in_base", "camera_in_flange") if fixed else ("camera_in_flange", "camera_in_base")
+        record = {"calibration_date": stamp, "calibration_mode": result.mode, "calibration_views": result.views,
+                  "calibration_residual_mm": round(result.residual_mm, 3),
+                  "calibration_residual_deg": round(result.residual_deg, 4),
+                  "calibration_reprojection_px": round(result.reprojection_px, 3)}
+        record = {k: v for k, v in record.items() if not isinstance(v, float) or math.isfinite(v)}  # NaN: not measured
+        path = pathlib.Path(self.cell_file)
+        text = path.read_text() if path.exists() else ""
+        # One camera, one calibration: the other form and the old task-frame pose go.
+        text = cell_file.remove_parameters(text, "ur_arm", [other])
+        # (camera_pose_source too, with the comment an older calibrate_camera wrote above it)
+        text = cell_file.remove_parameters(text, "tsdf", ["camera_pose", "camera_pose_source"])
+        text = cell_file.set_parameters(text, "tsdf", {"camera_pose_source": "parameter" if fixed else "topic"})
+        for key in reversed(record):  # missing ones are added at the top: reversed keeps their order
+            text = cell_file.set_parameters(text, "ur_arm", {key: record[key]})
+        where = "robot base frame" if fixed else "flange frame"
+        text = cell_file.set_parameters(text, "ur_arm", {name: pose},
+                                        f"calibrate_camera {stamp}: {result.mode}, the camera in the {where}")
+        cell_file.replace_file(path, text)
+        self.get_logger().info(f"written to {self.cell_file}: ur_arm.{name}, ur_arm.calibration_*, "
+                               f"tsdf.camera_pose_source" + ("; the stack composes tsdf.camera_pose from it and "
+                                                              "stack.workspace_origin_in_base" if fixed else ""))
+
+
+def convert_cell_file(path: str) -> str:
+    """The old tsdf.camera_pose (task frame) -> ur_arm.camera_in_base; the line to print.
+    Raises CellConfigError."""
+    if not path:
+        raise CellConfigError("convert:=true needs cell_file:=<the cell file to convert>")
+    camera = convert_camera_pose(load_sections([path]))
+    text = cell_file.remove_parameters(pathlib.Path(path).read_text(), "tsdf", ["camera_pose"])
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%MZ")
+    text = cell_file.set_parameters(text, "ur_arm", {"camera_in_base": camera},
+                                    f"calibrate_camera {stamp}: converted from tsdf.camera_pose (task frame) "
+                                    "with this file's workspace_origin_in_base")
+    cell_file.replace_file(path, text)
+    return (f"calibrate_camera: {path}: tsdf.camera_pose -> ur_arm.camera_in_base {camera} (robot base frame); "
+            "the stack now composes tsdf.camera_pose from it and stack.workspace_origin_in_base")
 
 
 def run_bag(node: CalibrateNode) -> int:
@@ -217,6 +258,9 @@ def main(args=None):
     node = None
     try:
         node = CalibrateNode()
+        if node.convert:
+            print(convert_cell_file(node.cell_file), flush=True)
+            return 0
         if node.board_png:
             cv2.imwrite(node.board_png, node.target.image(pixels_per_square=300, margin_px=150))
             print(f"calibrate_camera: board written to {node.board_png}: {node.target.squares_x}x{node.target.squares_y} "
@@ -236,7 +280,7 @@ def main(args=None):
         while rclpy.ok() and not node.done.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)
         return node.exit_code
-    except CalibrationError as e:
+    except (CalibrationError, CellConfigError) as e:
         print(f"calibrate_camera: {e}", file=sys.stderr, flush=True)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -3,23 +3,26 @@
 Two set-ups, both solved with `cv2.calibrateHandEye` (Park's method by default):
 
     eye_to_hand  the camera is fixed in the cell, the board is fixed to the flange.
-                 Unknown: X_task_camera (the tsdf node's `camera_pose`).
+                 Unknown: X_base_camera (ur_arm's `camera_in_base`; the stack
+                 composes the tsdf node's `camera_pose` from it and the workspace origin).
     eye_in_hand  the camera is on the wrist, the board lies fixed in the cell.
                  Unknown: X_flange_camera (ur_arm's `camera_in_flange`, which then
                  publishes `camera_pose` as the arm moves).
 
-Input: views = pairs (image, X_task_flange), the flange pose in the task frame at the
-moment of the image (ur_arm publishes it on `flange_pose`), plus the camera's
+Input: views = pairs (image, X_base_flange), the flange pose in the robot base frame at the
+moment of the image (ur_arm publishes it on `flange_pose_base`), plus the camera's
 intrinsics and distortion (its CameraInfo). Each image gives X_camera_board by ChArUco
 corner detection + solvePnP.
 
 The eye-to-hand case is the eye-in-hand one with the robot poses inverted: calibrateHandEye
 solves A_i X = X B_i for the camera in the "gripper" frame; handing it
-X_flange_task (instead of X_task_flange) makes its "gripper" the task frame and its
-"base" the flange, so the answer is X_task_camera.
+X_flange_base (instead of X_base_flange) makes its "gripper" the robot base and its
+"base" the flange, so the answer is X_base_camera. (Any fixed frame of the robot poses
+works; the eye-to-hand answer is in that frame. The robot's base is the one that no
+re-measuring of the workspace moves.)
 
 calibrateHandEye's answer is then refined, together with the other fixed transform
-(eye-to-hand: the board in the flange; eye-in-hand: the board in the task frame), on the
+(eye-to-hand: the board in the flange; eye-in-hand: the board in the robot base frame), on the
 reprojection error of every detected board corner (scipy least_squares, Huber loss).
 
 Residuals: the RMS reprojection error of all corners through that one model (px), and,
@@ -86,7 +89,7 @@ class BoardView:
 @dataclasses.dataclass
 class HandEyeResult:
     mode: str
-    X: np.ndarray                  # eye_to_hand: X_task_camera; eye_in_hand: X_flange_camera
+    X: np.ndarray                  # eye_to_hand: X_base_camera; eye_in_hand: X_flange_camera
     views: int
     residual_mm: float             # RMS spread of the per-view predictions of the other fixed transform
     residual_deg: float
@@ -95,11 +98,11 @@ class HandEyeResult:
 
     @property
     def pose_xyz_quat(self) -> list:
-        """[x, y, z, qx, qy, qz, qw]: the tsdf node's camera_pose (ur_arm's camera_in_flange)."""
+        """[x, y, z, qx, qy, qz, qw]: ur_arm's camera_in_base (eye_to_hand) or camera_in_flange."""
         return matrix_to_xyz_quat(self.X)
 
     def summary(self) -> str:
-        what = "camera in the task frame" if self.mode == "eye_to_hand" else "camera in the flange frame"
+        what = "camera in the robot base frame" if self.mode == "eye_to_hand" else "camera in the flange frame"
         return (f"{self.mode}: {what} {np.round(self.pose_xyz_quat, 5).tolist()} from {self.views} views; "
                 f"residual {self.residual_mm:.2f} mm / {self.residual_deg:.3f} deg RMS, "
                 f"board reprojection {self.reprojection_px:.2f} px")
@@ -150,10 +153,10 @@ def detect_board(image, K, dist, target: CharucoTarget, name: str = "the image")
     return BoardView(X, found, error, object_points.reshape(-1, 3), image_points.reshape(-1, 2))
 
 
-def check_motions(X_task_flange: list) -> None:
+def check_motions(X_base_flange: list) -> None:
     """CalibrationError if the flange rotations cannot determine a hand-eye transform:
     too few views, hardly any rotation, or every rotation about (nearly) one axis."""
-    n = len(X_task_flange)
+    n = len(X_base_flange)
     if n < MIN_VIEWS:
         raise CalibrationError(
             f"too few views: {n} with the board found, need at least {MIN_VIEWS} (10-15 recommended); "
@@ -161,7 +164,7 @@ def check_motions(X_task_flange: list) -> None:
     axes, largest = [], 0.0
     for i in range(n):
         for j in range(i + 1, n):
-            rotvec = Rotation.from_matrix(X_task_flange[i][:3, :3].T @ X_task_flange[j][:3, :3]).as_rotvec()
+            rotvec = Rotation.from_matrix(X_base_flange[i][:3, :3].T @ X_base_flange[j][:3, :3]).as_rotvec()
             angle = float(np.degrees(np.linalg.norm(rotvec)))
             largest = max(largest, angle)
             if angle >= MIN_ROTATION_DEG:
@@ -179,7 +182,7 @@ def check_motions(X_task_flange: list) -> None:
             "undetermined; add views tilted about at least one other axis")
 
 
-def solve_hand_eye(X_task_flange: list, X_camera_board: list, mode: str = "eye_to_hand",
+def solve_hand_eye(X_base_flange: list, X_camera_board: list, mode: str = "eye_to_hand",
                    method: int = cv2.CALIB_HAND_EYE_PARK, observations=None, K=None, dist=None) -> HandEyeResult:
     """The camera pose from matched robot and board poses (see the module doc).
 
@@ -188,12 +191,12 @@ def solve_hand_eye(X_task_flange: list, X_camera_board: list, mode: str = "eye_t
     if mode not in MODES:
         raise CalibrationError(f"mode {mode!r}: use 'eye_to_hand' (camera fixed, board on the flange) or "
                                "'eye_in_hand' (camera on the flange, board fixed)")
-    if len(X_task_flange) != len(X_camera_board):
+    if len(X_base_flange) != len(X_camera_board):
         raise ValueError("one flange pose per board pose")
-    robot = [np.asarray(X, float) for X in X_task_flange]
+    robot = [np.asarray(X, float) for X in X_base_flange]
     check_motions(robot)
     if mode == "eye_to_hand":
-        robot_in = [np.linalg.inv(X) for X in robot]  # X_flange_task: the "gripper" becomes the task frame
+        robot_in = [np.linalg.inv(X) for X in robot]  # X_flange_base: the "gripper" becomes the robot base frame
     else:
         robot_in = robot
     R, t = cv2.calibrateHandEye([X[:3, :3] for X in robot_in], [X[:3, 3] for X in robot_in],
@@ -218,15 +221,15 @@ def solve_hand_eye(X_task_flange: list, X_camera_board: list, mode: str = "eye_t
 
 def _other_transform(mode, X, robot, X_camera_board) -> list:
     """Each view's prediction of the fixed transform that is not asked for."""
-    if mode == "eye_to_hand":   # X_flange_board = inv(X_task_flange) X_task_camera X_camera_board
+    if mode == "eye_to_hand":   # X_flange_board = inv(X_base_flange) X_base_camera X_camera_board
         return [np.linalg.inv(F) @ X @ B for F, B in zip(robot, X_camera_board)]
-    return [F @ X @ B for F, B in zip(robot, X_camera_board)]  # X_task_board
+    return [F @ X @ B for F, B in zip(robot, X_camera_board)]  # X_base_board
 
 
 def _camera_board(mode, X, Y, F) -> np.ndarray:
-    if mode == "eye_to_hand":   # X = X_task_camera, Y = X_flange_board
+    if mode == "eye_to_hand":   # X = X_base_camera, Y = X_flange_board
         return np.linalg.inv(X) @ F @ Y
-    return np.linalg.inv(F @ X) @ Y  # X = X_flange_camera, Y = X_task_board
+    return np.linalg.inv(F @ X) @ Y  # X = X_flange_camera, Y = X_base_board
 
 
 def _mean_pose(poses) -> np.ndarray:
@@ -272,10 +275,10 @@ def _refine(mode, X, Y, robot, observations, K, dist):
 
 def calibrate(views, K, dist, target: CharucoTarget, mode: str = "eye_to_hand", skip_unseen: bool = True,
               log=None) -> HandEyeResult:
-    """views: iterable of (name, image, X_task_flange). Images without the board are
+    """views: iterable of (name, image, X_base_flange). Images without the board are
     skipped (and logged) when skip_unseen, else raise."""
     flanges, boards, observations = [], [], []
-    for name, image, X_task_flange in views:
+    for name, image, X_base_flange in views:
         try:
             view = detect_board(image, K, dist, target, name)
         except CalibrationError as e:
@@ -284,7 +287,7 @@ def calibrate(views, K, dist, target: CharucoTarget, mode: str = "eye_to_hand", 
             if log:
                 log(f"skipped: {e}")
             continue
-        flanges.append(np.asarray(X_task_flange, float))
+        flanges.append(np.asarray(X_base_flange, float))
         boards.append(view.X_camera_board)
         observations.append((view.object_points, view.image_points))
     return solve_hand_eye(flanges, boards, mode, observations=observations, K=K, dist=dist)

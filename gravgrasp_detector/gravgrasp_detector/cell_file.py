@@ -4,7 +4,8 @@ without losing what a person wrote in it: the file is edited as text, only the n
 value came from), everything else, comments included, stays byte for byte.
 
 Values are written in flow style on one line; a parameter written in block style in the
-file (a list over several lines) is replaced by one line.
+file (a list over several lines) is replaced by one line. A parameter can also be removed
+(a form the file no longer uses).
 """
 from __future__ import annotations
 
@@ -87,12 +88,43 @@ def set_parameters(text: str, node: str, values: dict, comment: str | None = Non
     return "\n".join(lines) + "\n"
 
 
-def write_parameters(path, updates: dict, comment: str | None = None) -> None:
-    """updates: {node: {name: value}}; the file is replaced atomically."""
+def remove_parameters(text: str, node: str, names) -> str:
+    """`text` without node's parameters `names` (block-style continuations and a comment
+    line written above them by a tool, e.g. "# calibrate_camera ...", go too)."""
+    lines = text.splitlines()
+    header = re.compile(rf"^/?{re.escape(node)}:\s*(#.*)?$")
+    start = next((i for i, line in enumerate(lines) if header.match(line)), None)
+    if start is None:
+        return text
+    for name in names:
+        end = next((i for i in range(start + 1, len(lines)) if _content(lines[i]) and _indent(lines[i]) == 0), len(lines))
+        key = re.compile(rf"^ +{re.escape(name)}:")
+        at = next((i for i in range(start + 1, end) if key.match(lines[i])), None)
+        if at is None:
+            continue
+        indent, stop = _indent(lines[at]), at + 1
+        while stop < end and lines[stop].strip() and _indent(lines[stop]) > indent and not lines[stop].strip().startswith("#"):
+            stop += 1
+        if at > start + 1 and re.match(r"^ *# (calibrate_camera|cell) ", lines[at - 1]):
+            at -= 1
+        del lines[at:stop]
+    return "\n".join(lines) + "\n"
+
+
+def write_parameters(path, updates: dict, comment: str | None = None, remove: dict | None = None) -> None:
+    """updates: {node: {name: value}}; remove: {node: [name, ...]}; the file is replaced atomically."""
     path = pathlib.Path(path)
     text = path.read_text() if path.exists() else ""
+    for node, names in (remove or {}).items():
+        text = remove_parameters(text, node, names)
     for node, values in updates.items():
         text = set_parameters(text, node, values, comment)
+    replace_file(path, text)
+
+
+def replace_file(path, text: str) -> None:
+    """Write `text` to `path` atomically (a temp file beside it, renamed)."""
+    path = pathlib.Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     with os.fdopen(fd, "w") as f:
         f.write(text)
