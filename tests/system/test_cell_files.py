@@ -104,6 +104,18 @@ def test_camera_in_base_gives_the_old_task_pose_and_survives_a_remeasured_origin
     assert stale_m > 0.02, "what the old form left wrong"
 
 
+def test_eye_to_hand_does_not_depend_on_the_controllers_tcp():
+    """Flange poses from the controller's TCP pose and a tcp_in_flange that is off by E are
+    the true ones times E, a constant in the flange frame: the solve puts it into the board's
+    pose on the flange, and the camera pose does not change (doc/arm-adapter.md)."""
+    X_base_camera = xyz_quat_to_matrix([0.0, 0.15, 0.65] + list(Rotation.from_euler("x", -135, degrees=True).as_quat()))
+    flanges, boards = _eye_to_hand_poses(X_base_camera)
+    E = xyz_quat_to_matrix([0.003, -0.002, 0.004] + list(Rotation.from_euler("z", 0.8, degrees=True).as_quat()))
+    mm, deg = _pose_apart(matrix_to_xyz_quat(solve_hand_eye([F @ E for F in flanges], boards).X),
+                          matrix_to_xyz_quat(X_base_camera))
+    assert mm < 1e-5 and deg < 1e-3
+
+
 def test_old_form_camera_pose_is_read_with_one_warning():
     old = {"tsdf": {"camera_pose_source": "parameter", "camera_pose": [0.15, -0.30, 0.65, -0.9239, 0.0, 0.0, 0.3827]},
            "stack": {"workspace_origin_in_base": [-0.15, 0.45, 0.0, 0.0]}}
