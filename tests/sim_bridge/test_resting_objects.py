@@ -32,7 +32,7 @@ def positions(world):
 
 def test_objects_at_rest_away_from_the_hand_fall_asleep_and_stay_where_they_were(world):
     world.advance(0.5)
-    assert sorted(world._resting.asleep()) == sorted(world.object_names())
+    assert sorted(world.asleep_objects()) == sorted(world.object_names())
     before = positions(world)
     world.advance(0.3)
     after = positions(world)
@@ -47,7 +47,7 @@ def test_the_hand_coming_near_wakes_only_the_object_it_nears(world):
     above_cylinder = pose(R_TOP_DOWN, (*RIGHT, TABLE_HEIGHT_M + 0.12 + 0.02))
     ok, message = world.move_tcp(above_cylinder, 0.25)
     assert ok, message
-    asleep = world._resting.asleep()
+    asleep = world.asleep_objects()
     assert cylinder not in asleep, f"the hand is within {WAKE_GAP_M * 1e3:.0f} mm of the cylinder but it sleeps"
     assert box in asleep
 
@@ -83,7 +83,7 @@ def test_a_removed_object_asleep_stays_on_the_shelf():
     w = two_object_world()
     w.advance(0.5)
     box = w.object_names()[0]
-    assert box in w._resting.asleep()
+    assert box in w.asleep_objects()
     w.remove_object(box)
     w.advance(0.2)
     X = w._model.plant.EvalBodyPoseInWorld(w._plant_context(), w._model.object_bodies[0]).translation()

@@ -101,16 +101,11 @@ class _Snapshot:
 
 def _switch(cell, protocol: Protocol):
     """Run the cell's next attempt under `protocol`'s execution settings."""
-    from ..world.resting_objects import RestingObjects
     w = cell.world
     cell.protocol = protocol
     cell.limits = dataclasses.replace(cell.limits, lift_speed_mps=protocol.lift_speed_mps)
     cell.executor.limits = cell.limits
-    if protocol.freeze_resting_objects and w._resting is None:
-        sg_context = w._model.scene_graph.GetMyMutableContextFromRoot(w.simulator.get_mutable_context())
-        w._resting = RestingObjects(w._model, sg_context, w.names, w._hull_vertices)
-    elif not protocol.freeze_resting_objects:
-        w._resting = None
+    w.freeze_resting_objects(protocol.freeze_resting_objects)
 
 
 def _timed(cell, fn):

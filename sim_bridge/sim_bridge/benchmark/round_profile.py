@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import collections
 import cProfile
+import io
 import json
 import pathlib
 import pstats
@@ -92,7 +93,6 @@ def profile_round(results_dir, method, mass_kg, scene_id, execution=None, models
     total = time.process_time() - t0
     text = ""
     if profiler:
-        import io
         buf = io.StringIO()
         pstats.Stats(profiler, stream=buf).sort_stats("tottime").print_stats(cprofile)
         text = buf.getvalue()

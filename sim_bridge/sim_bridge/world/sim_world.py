@@ -110,9 +110,8 @@ class SimWorld:
             self._motion = None
             self._set_hand_state(self._hold, np.zeros(3), np.zeros(3))
             self._fingers = Fingers(self._model, self.simulator, self.settings.contact.grip_force_n)
-            self._resting = (RestingObjects(self._model, self._model.scene_graph.GetMyMutableContextFromRoot(
-                self.simulator.get_mutable_context()), self.names, self._hull_vertices)
-                if self.settings.freeze_resting_objects else None)
+            self._resting = None
+            self.freeze_resting_objects(self.settings.freeze_resting_objects)
             self.simulator.Initialize()
             self._advance_locked(self.settings.settle_time_s)
             names = list(self.names)
@@ -125,6 +124,22 @@ class SimWorld:
 
     def _plant_context(self):
         return self._model.plant.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
+
+    def freeze_resting_objects(self, on: bool) -> None:
+        """Freeze objects at rest away from the hand from now on (`resting_objects`), or
+        wake them all and stop."""
+        with self.lock:
+            if on and self._resting is None:
+                sg_context = self._model.scene_graph.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
+                self._resting = RestingObjects(self._model, sg_context, self.names, self._hull_vertices)
+            elif not on and self._resting is not None:
+                self._resting.wake_all()
+                self._resting = None
+
+    def asleep_objects(self) -> list:
+        """Names of the objects frozen now (none unless freezing is on)."""
+        with self.lock:
+            return self._resting.asleep() if self._resting is not None else []
 
     # -- time ---------------------------------------------------------------------
 
