@@ -27,8 +27,7 @@ from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import load_table
 from .object_sources import object_from_table
-
-DIRECTIONS = {"across+": (1.0, 0.0, 0.0), "across-": (-1.0, 0.0, 0.0), "shallower": (0.0, 0.0, -1.0)}  # TCP frame
+from .perturbed_grasps import DIRECTIONS, shifted
 
 
 @dataclass(frozen=True)
@@ -38,13 +37,6 @@ class ObjectTask:
     mesh_dirs: tuple
     candidates: tuple  # indices of held candidates
     shifts_m: tuple
-
-
-def shifted(X_object_tcp, direction_tcp, distance_m):
-    """The pose moved by distance_m along a direction of its own TCP frame."""
-    X = np.array(X_object_tcp, float)
-    X[:3, 3] += X[:3, :3] @ (np.asarray(direction_tcp, float) * distance_m)
-    return X
 
 
 def run_object_task(task: ObjectTask):

@@ -32,9 +32,11 @@ from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import ROW_KEYS, evaluate_candidate, load_table, stack_rows
 from .object_sources import object_from_table
-from .perturbation_study import DIRECTIONS, shifted
 
-DIRECTIONS_TCP = np.array(list(DIRECTIONS.values()))  # the study's: across+, across-, shallower
+# The directions a held candidate is moved in, in its own TCP frame (x across the pads, z
+# along the approach); the perturbation study measured how far along each a grasp holds.
+DIRECTIONS = {"across+": (1.0, 0.0, 0.0), "across-": (-1.0, 0.0, 0.0), "shallower": (0.0, 0.0, -1.0)}
+DIRECTIONS_TCP = np.array(list(DIRECTIONS.values()))
 DIRECTORY = "perturbed"
 
 
@@ -47,6 +49,13 @@ class PerturbTask:
     per_object: int
     shift_m: float
     seed: int
+
+
+def shifted(X_object_tcp, direction_tcp, distance_m):
+    """The pose moved by distance_m along a direction of its own TCP frame."""
+    X = np.array(X_object_tcp, float)
+    X[:3, 3] += X[:3, :3] @ (np.asarray(direction_tcp, float) * distance_m)
+    return X
 
 
 def perturbed_path(objects_dir, name) -> pathlib.Path:
