@@ -88,3 +88,30 @@ def test_a_removed_object_asleep_stays_on_the_shelf():
     w.advance(0.2)
     X = w._model.plant.EvalBodyPoseInWorld(w._plant_context(), w._model.object_bodies[0]).translation()
     assert X[0] > 4.0, f"the removed box is at {X}, not on the parking shelf"
+
+
+def test_rewind_to_a_checkpoint_replays_a_grasp_the_same_way():
+    """The execution-settings study runs one attempt twice from one state: after `rewind`,
+    time, object poses, the hand and what is frozen are as they were at `checkpoint`."""
+    w = two_object_world()
+    w.advance(0.4)
+    checkpoint, t0, before = w.checkpoint(), w.time_s, positions(w)
+    asleep = sorted(w.asleep_objects())
+    runs = []
+    for _ in range(2):
+        ok, message = w.move_tcp(pose(R_TOP_DOWN, (*RIGHT, TABLE_HEIGHT_M + 0.09)), 0.25)
+        assert ok, message
+        w.command_fingers(0.0, 0.1, 40.0)
+        w.advance(0.4)
+        runs.append((w.time_s, positions(w), w.tcp_pose().copy(), w.finger_width_m()))
+        w.rewind(checkpoint)
+        assert w.time_s == pytest.approx(t0)
+        assert sorted(w.asleep_objects()) == asleep
+        for name, p in before.items():
+            np.testing.assert_array_equal(positions(w)[name], p)
+    (t_a, p_a, X_a, width_a), (t_b, p_b, X_b, width_b) = runs
+    assert t_a == pytest.approx(t_b)
+    assert width_a == pytest.approx(width_b, abs=1e-6) and width_a < 0.06  # closed on the cylinder
+    np.testing.assert_allclose(X_a, X_b, atol=1e-9)
+    for name in p_a:
+        np.testing.assert_allclose(p_a[name], p_b[name], atol=1e-6)

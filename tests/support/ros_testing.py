@@ -20,6 +20,8 @@ import time
 
 import rclpy
 
+from sim_bridge.ros.service_call import call_blocking
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL = ROOT / "ros_ws" / "install"
 DOMAIN_LOCK_DIR = pathlib.Path(tempfile.gettempdir()) / "gravgrasp-ros-domains"
@@ -208,14 +210,8 @@ class BackgroundSpin:
         self.thread.start()
 
     def call(self, client, request, timeout_s: float = 30.0):
-        if not client.wait_for_service(timeout_sec=min(timeout_s, 15.0)):
-            raise AssertionError(f"service {client.srv_name} not available")
-        done = threading.Event()
-        future = client.call_async(request)
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout_s):
-            raise AssertionError(f"service {client.srv_name} did not answer within {timeout_s} s")
-        return future.result()
+        """The response; raises ServiceTimeout (a TimeoutError) and so fails the test."""
+        return call_blocking(client, request, timeout_s, wait_for_service_s=15.0)
 
     def shutdown(self):
         self.executor.shutdown()

@@ -25,7 +25,6 @@ One JSON per round under --out/rounds (a rerun resumes), the summary in
 from __future__ import annotations
 
 import argparse
-import copy
 import dataclasses
 import json
 import pathlib
@@ -38,7 +37,7 @@ from gravgrasp_detector import atomic_files
 from gravgrasp_detector.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
-from .clearing import clear_table
+from .clearing import Refused, clear_table
 from .protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
 from .rounds import RoundTask, make_cell
 
@@ -71,34 +70,6 @@ def round_protocol(config: dict) -> Protocol:
     return Protocol(**config["protocol"])
 
 
-class _Snapshot:
-    """Everything a SimCell's next attempt depends on, to run it twice from one state."""
-
-    def __init__(self, cell):
-        w, ex = cell.world, cell.executor
-        self.context = w.simulator.get_context().Clone()
-        self.world = {k: copy.copy(getattr(w, k)) for k in ("_hold", "_motion", "_removed")}
-        self.fingers = copy.copy(vars(w._fingers))
-        self.cell = {"_fallen": set(cell._fallen), "protocol": cell.protocol, "limits": cell.limits}
-        self.executor = {k: getattr(ex, k) for k in ("calibration", "gripper", "armed", "limits")}
-        self.resting = w._resting
-
-    def restore(self, cell):
-        w, ex = cell.world, cell.executor
-        if w._resting is not None:
-            w._resting.wake_all()  # removes its collision filter from the context copied over next
-        w.simulator.get_mutable_context().SetTimeStateAndParametersFrom(self.context)
-        w.simulator.Initialize()  # Drake's simulator refuses a context whose time went back otherwise
-        for k, v in self.world.items():
-            setattr(w, k, copy.copy(v))
-        vars(w._fingers).update(copy.copy(self.fingers))
-        cell._fallen = set(self.cell["_fallen"])
-        cell.protocol, cell.limits = self.cell["protocol"], self.cell["limits"]
-        for k, v in self.executor.items():
-            setattr(ex, k, v)
-        w._resting = self.resting
-
-
 def _switch(cell, protocol: Protocol):
     """Run the cell's next attempt under `protocol`'s execution settings."""
     w = cell.world
@@ -122,20 +93,20 @@ def study_round(sr: StudyRound) -> dict:
     execute, attempts = cell.execute, []
 
     def paired_execute(grasp, tsdf):
-        snapshot = _Snapshot(cell)
+        checkpoint = cell.checkpoint()
         new = {}
         for name in sr.settings:
             _switch(cell, with_execution(old, name))
             try:
                 result, cpu_s, sim_s = _timed(cell, lambda: execute(grasp, tsdf))
-            except Exception as e:  # Refused: the same checks refuse under every setting
-                if type(e).__name__ == "Refused":
-                    snapshot.restore(cell)
-                    raise
+            except Refused:  # the same checks refuse under every setting
+                cell.rewind(checkpoint)
+                raise
+            except Exception as e:
                 result, cpu_s, sim_s = {"outcome": f"error: {type(e).__name__}: {e}"[:200]}, None, None
             new[name] = {"outcome": result["outcome"], "cpu_s": cpu_s, "sim_s": sim_s,
                          "reason": result.get("reason", "")[:200]}
-            snapshot.restore(cell)
+            cell.rewind(checkpoint)
         result, cpu_s, sim_s = _timed(cell, lambda: execute(grasp, tsdf))
         n = len(attempts)
         attempts.append({"attempt": n + 1, "recorded": sr.recorded_outcomes[n] if n < len(sr.recorded_outcomes) else None,

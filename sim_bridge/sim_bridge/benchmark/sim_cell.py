@@ -126,6 +126,20 @@ class SimCell:
         self._fallen.update(fallen)
         return fallen
 
+    def checkpoint(self):
+        """The cell's state (world, executor, fallen objects, settings) to `rewind` to:
+        one attempt can then run again from the same scene."""
+        ex = self.executor
+        return (self.world.checkpoint(), set(self._fallen), self.protocol, self.limits,
+                {k: getattr(ex, k) for k in ("calibration", "gripper", "armed", "limits")})
+
+    def rewind(self, checkpoint) -> None:
+        world, fallen, self.protocol, self.limits, executor = checkpoint
+        self.world.rewind(world)
+        self._fallen = set(fallen)
+        for k, v in executor.items():
+            setattr(self.executor, k, v)
+
     def observe(self):
         """One depth image from the fixed camera -> a fresh TSDF: (grid, voxel_size_m, origin)."""
         depth, intrinsics, T_task_camera = self.world.render_depth()

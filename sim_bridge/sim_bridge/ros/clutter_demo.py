@@ -57,6 +57,7 @@ from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
 
 from ..benchmark.clearing import CONSECUTIVE_FAILURES_END, Fault, Refused, clear_table, success_rates
 from .processes import Processes, installed
+from .service_call import call_blocking
 
 REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Response.UNREACHABLE)
 # The executor disarms on these: a robot would wait for a person, so the round ends.
@@ -88,6 +89,7 @@ class Client:
         self.executor.add_node(self.node)
         threading.Thread(target=self.executor.spin, daemon=True).start()
         self.grasps_event = threading.Event()
+        self._clients = {}  # service name -> client, made once
 
     def _on_states(self, msg):
         self.states = msg
@@ -100,15 +102,10 @@ class Client:
         self.grasps_event.set()
 
     def call(self, srv_type, name, request, timeout_s):
-        client = self.node.create_client(srv_type, name)
-        if not client.wait_for_service(timeout_sec=min(timeout_s, 30.0)):
-            raise TimeoutError(f"service {name} is not available")
-        done = threading.Event()
-        future = client.call_async(request)
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout_s):
-            raise TimeoutError(f"service {name} did not answer in {timeout_s:.0f} s")
-        return future.result()
+        """The service's response; raises ServiceTimeout (the round cannot go on)."""
+        if name not in self._clients:
+            self._clients[name] = self.node.create_client(srv_type, name)
+        return call_blocking(self._clients[name], request, timeout_s)
 
     def states_after(self, delay_s, timeout_s=30.0):
         """The first object states read `delay_s` of wall time from now or later (a

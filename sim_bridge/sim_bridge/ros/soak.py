@@ -43,14 +43,15 @@ import numpy as np
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 
+from gravgrasp_detector.poses import pose_from_matrix
 from gravgrasp_msgs.msg import GraspArray
 from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
 
 from ..world import SceneConfig, SimWorld, WorldSettings
 from .processes import Processes, installed
+from .service_call import ServiceTimeout, call_blocking
 
 RSS_GROWTH_LIMIT = 0.05
 LATENCY_GOAL_P95_MS = 25.0
@@ -116,6 +117,7 @@ class Replay:
         self.executor.add_node(self.node)
         threading.Thread(target=self.executor.spin, daemon=True).start()
         self._stop = threading.Event()
+        self._clients = {}  # service name -> client, made once
         self.record = False
 
     def _on_grasps(self, msg):
@@ -143,13 +145,14 @@ class Replay:
             self._stop.wait(max(0.0, t_next - time.monotonic()))
 
     def call(self, srv_type, name, request, timeout_s):
-        client = self.node.create_client(srv_type, name)
-        if not client.wait_for_service(timeout_sec=min(timeout_s, 30.0)):
+        """The service's response, or None when it is not there or did not answer (the
+        soak counts that as unanswered and goes on)."""
+        if name not in self._clients:
+            self._clients[name] = self.node.create_client(srv_type, name)
+        try:
+            return call_blocking(self._clients[name], request, timeout_s)
+        except ServiceTimeout:
             return None
-        done = threading.Event()
-        future = client.call_async(request)
-        future.add_done_callback(lambda _: done.set())
-        return future.result() if done.wait(timeout_s) else None
 
 
 def result_name(response) -> str:
@@ -169,8 +172,8 @@ def run(args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     print(f"soak: rendering the seed-{args.seed} view ...", flush=True)
     depth, intrinsics, T = render_view(args.seed, args.objects)
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    camera_pose = [float(v) for v in (*T[:3, 3], *q)]
+    position, quaternion = pose_from_matrix(T)
+    camera_pose = [*position, *quaternion]  # the tsdf's camera_pose parameter: x y z qx qy qz qw
     procs = Processes(out)
     results = collections.Counter()
     unanswered = refused = 0

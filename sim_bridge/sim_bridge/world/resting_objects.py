@@ -116,6 +116,18 @@ class RestingObjects:
             self._asleep.clear()
             self._apply_filter()
 
+    def saved(self) -> tuple:
+        """What asleep, since when and under which filter: with a copy of the Drake context
+        (which holds the filter itself, in SceneGraph's state), enough to `restore` to."""
+        return dict(self._asleep), dict(self._resting_since), self._steps, self._filter_id
+
+    def restore(self, saved: tuple, scene_graph_context) -> None:
+        """Back to `saved`; the caller has put the context saved with it back first. The
+        filter manager is taken anew: the copy replaced the geometry state it pointed into."""
+        self._filters = self._model.scene_graph.collision_filter_manager(scene_graph_context)
+        asleep, since, self._steps, self._filter_id = saved
+        self._asleep, self._resting_since = dict(asleep), dict(since)
+
     # -- sleep and wake ---------------------------------------------------------------
 
     def _update(self, plant_context, time_s) -> bool:

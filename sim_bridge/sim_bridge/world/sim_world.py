@@ -36,7 +36,9 @@ step the world while other threads command it and read from it.
 
 from __future__ import annotations
 
+import copy
 import ctypes
+import dataclasses
 import gc
 import threading
 
@@ -61,6 +63,16 @@ from .scene_objects import draw_scene
 # of the object in the grasp. At 1000 kg the same load gives 6 um/s.
 STAND_IN_MASS_KG = 1000.0
 
+
+
+@dataclasses.dataclass(frozen=True)
+class WorldCheckpoint:
+    """A saved SimWorld state (`SimWorld.checkpoint`); opaque to callers."""
+    context: object
+    world: dict
+    fingers: dict
+    resting: object
+    resting_state: object
 
 class SimWorld:
     """A Drake world stepped by the caller (`advance`) or by a `RealTimeRunner` thread.
@@ -135,6 +147,30 @@ class SimWorld:
             elif not on and self._resting is not None:
                 self._resting.wake_all()
                 self._resting = None
+
+    def checkpoint(self) -> "WorldCheckpoint":
+        """Everything the world's next steps depend on, to run them again from here
+        (`rewind`): the Drake context (object states; SceneGraph's collision filters), the
+        hand's hold pose and motion, the finger servo, the removed and the frozen objects."""
+        with self.lock:
+            resting = self._resting
+            return WorldCheckpoint(self.simulator.get_context().Clone(),
+                                   {k: copy.copy(getattr(self, k)) for k in ("_hold", "_motion", "_removed")},
+                                   copy.copy(vars(self._fingers)),
+                                   resting, resting.saved() if resting is not None else None)
+
+    def rewind(self, checkpoint: "WorldCheckpoint") -> None:
+        """Back to the state `checkpoint` saved, simulated time included."""
+        with self.lock:
+            self.simulator.get_mutable_context().SetTimeStateAndParametersFrom(checkpoint.context)
+            self.simulator.Initialize()  # Drake's simulator refuses a context whose time went back otherwise
+            for k, v in checkpoint.world.items():
+                setattr(self, k, copy.copy(v))
+            vars(self._fingers).update(copy.copy(checkpoint.fingers))
+            self._resting = checkpoint.resting
+            if self._resting is not None:
+                sg_context = self._model.scene_graph.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
+                self._resting.restore(checkpoint.resting_state, sg_context)
 
     def asleep_objects(self) -> list:
         """Names of the objects frozen now (none unless freezing is on)."""
