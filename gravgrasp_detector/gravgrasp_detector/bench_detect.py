@@ -24,8 +24,8 @@ import torch
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from . import detection, model_file, networks
-from .tsdf import CameraIntrinsics, TSDFVolume, depth_from_millimetres
+from .perception import detection, model_file, networks
+from .perception.tsdf import CameraIntrinsics, TSDFVolume, depth_from_millimetres
 from .tsdf_node import camera_pose_from_msg, depth_from_image_msg
 
 ROOT = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", os.getcwd()))

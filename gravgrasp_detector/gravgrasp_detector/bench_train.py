@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from . import networks
+from .perception import networks
 from .training_config import TrainConfig
 from .training_losses import losses, training_outputs
 

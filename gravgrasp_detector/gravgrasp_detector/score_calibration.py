@@ -32,10 +32,10 @@ import numpy as np
 import torch
 from scipy.stats import spearmanr
 
-from . import model_file
+from .perception import model_file
 from .atomic_files import save_figure, save_json
 from .training_config import TrainConfig
-from .detection import DetectionOptions, detect_grasps, near_surface_mask
+from .perception.detection import DetectionOptions, detect_grasps, near_surface_mask
 from .training_losses import auroc
 from .training_scenes import G_MPS2, DataError, load_scene, split_scenes
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import rotation
+from .perception import rotation
 from .training_config import TrainConfig
 from .training_scenes import DataError
 from .training_loop import train

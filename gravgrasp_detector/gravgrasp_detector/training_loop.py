@@ -16,7 +16,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from . import atomic_files, model_file, networks, rotation, tsdf
+from . import atomic_files
+from .perception import model_file, networks, rotation, tsdf
 from .training_config import TrainConfig
 from .training_scenes import DataError, load_scene, make_example, select_labels, split_scenes
 from .training_losses import angular_error_deg, auroc, losses, training_outputs

@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from scipy.stats import rankdata
 
-from . import rotation
+from .perception import rotation
 from .training_config import TrainConfig
 
 

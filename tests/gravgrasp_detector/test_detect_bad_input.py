@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from gravgrasp_detector import model_file, networks
-from gravgrasp_detector.tsdf import TSDFVolume
+from gravgrasp_detector.perception import model_file, networks
+from gravgrasp_detector.perception.tsdf import TSDFVolume
 from gravgrasp_detector.tsdf_node import VOLUME_QOS
 
 import ros_testing

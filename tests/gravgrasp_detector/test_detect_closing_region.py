@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from gravgrasp_detector import detection
-from gravgrasp_detector.model_file import load_model
-from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
+from gravgrasp_detector.perception import detection
+from gravgrasp_detector.perception.model_file import load_model
+from gravgrasp_detector.perception.tsdf import CameraIntrinsics, TSDFVolume
 from robotiq_driver.hand_geometry import FINGER_TIP_Z_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_FACE_Z_M
 from sim_bridge.physics.depth_rendering import DepthRenderer, look_at
 

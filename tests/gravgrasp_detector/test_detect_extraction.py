@@ -6,8 +6,9 @@ import pytest
 import torch
 from scipy import ndimage
 
-from gravgrasp_detector import detection, grasp_execution, hand_clearance, networks, rotation
-from gravgrasp_detector.tsdf import InputError
+from gravgrasp_detector import grasp_execution
+from gravgrasp_detector.perception import detection, hand_clearance, networks, rotation
+from gravgrasp_detector.perception.tsdf import InputError
 
 VS = 0.0075
 R = 40

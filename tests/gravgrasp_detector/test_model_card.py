@@ -10,7 +10,8 @@ import shutil
 import numpy as np
 import pytest
 
-from gravgrasp_detector import model_card, model_file, training_loop
+from gravgrasp_detector import model_card, training_loop
+from gravgrasp_detector.perception import model_file
 from gravgrasp_detector.training_config import TrainConfig
 from box_scenes import make_scene
 

@@ -2,9 +2,9 @@
 import pytest
 import torch
 
-from gravgrasp_detector import model_file, networks
-from gravgrasp_detector.model_file import ModelFileError
-from gravgrasp_detector.tsdf import TSDFVolume
+from gravgrasp_detector.perception import model_file, networks
+from gravgrasp_detector.perception.model_file import ModelFileError
+from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 
 @pytest.mark.parametrize("representation", ["ex-ez", "ey-ez", "quat"])

@@ -4,7 +4,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from gravgrasp_detector import rotation
+from gravgrasp_detector.perception import rotation
 
 
 def assert_rotations(R):

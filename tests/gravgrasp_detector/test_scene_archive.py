@@ -48,7 +48,7 @@ def test_a_training_machine_without_open3d_unpacks_trains_and_writes_a_model(tmp
     import subprocess
     import sys
 
-    from gravgrasp_detector import model_file, tsdf
+    from gravgrasp_detector.perception import model_file, tsdf
 
     (tmp_path / "scenes").mkdir()
     scene_archive.pack(write_scenes(tmp_path / "scenes", 4, seed=5), tmp_path / "a.npz.xz")

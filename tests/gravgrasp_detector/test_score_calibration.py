@@ -5,7 +5,8 @@ import json
 import pytest
 import torch
 
-from gravgrasp_detector import model_file, networks, score_calibration, training_scenes, tsdf
+from gravgrasp_detector import score_calibration, training_scenes
+from gravgrasp_detector.perception import model_file, networks, tsdf
 
 from box_scenes import write_scenes
 
@@ -124,7 +125,7 @@ def test_bad_inputs_are_one_line_each(scenes, tmp_path, capsys):
 def test_top_picks_are_told_apart_by_what_the_scene_knows_of_their_voxel(scenes, tmp_path, monkeypatch):
     import numpy as np
 
-    from gravgrasp_detector.detection import Grasp
+    from gravgrasp_detector.perception.detection import Grasp
     path = sorted(scenes.glob("*.npz"))[0]
     scene = training_scenes.load_scene(path)
     label = tuple(scene["index"][0].tolist())
@@ -155,7 +156,7 @@ def test_a_pick_holds_the_weights_its_closest_label_holds(scenes, tmp_path, monk
     0.5 kg but not 1.5 kg (14.7 N) on the first, and up to 2.5 kg (24.5 N) on the second."""
     import numpy as np
 
-    from gravgrasp_detector.detection import Grasp
+    from gravgrasp_detector.perception.detection import Grasp
     path = sorted(scenes.glob("*.npz"))[0]
     z = dict(np.load(path))
     voxel = np.asarray([[20, 20, 10]], z["label_index"].dtype)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from gravgrasp_detector import (bench_train, model_file, networks, rotation, training, training_loop, training_losses,
-                                training_scenes)
+from gravgrasp_detector import bench_train, training, training_loop, training_losses, training_scenes
+from gravgrasp_detector.perception import model_file, networks, rotation
 from gravgrasp_detector.training_config import TrainConfig
 
 from box_scenes import write_scenes

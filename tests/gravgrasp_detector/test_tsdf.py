@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from gravgrasp_detector.tsdf import (
+from gravgrasp_detector.perception.tsdf import (
     CameraIntrinsics,
     InputError,
     TSDFVolume,

@@ -10,7 +10,7 @@ import pytest
 import torch
 import trimesh
 
-from gravgrasp_detector import model_file, networks, tsdf
+from gravgrasp_detector.perception import model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
 from sim_bridge.benchmark import clearing, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds

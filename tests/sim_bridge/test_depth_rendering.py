@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
+from gravgrasp_detector.perception.tsdf import CameraIntrinsics, TSDFVolume
 from sim_bridge.physics.depth_rendering import DepthRenderer, look_at, random_view_on_hemisphere, render_depth
 
 K = CameraIntrinsics(640, 480, 540.0, 540.0, 319.5, 239.5)

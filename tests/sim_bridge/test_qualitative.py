@@ -9,7 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
-from gravgrasp_detector import model_file, networks, tsdf
+from gravgrasp_detector.perception import model_file, networks, tsdf
 from sim_bridge.benchmark import qualitative
 
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from gravgrasp_detector.detection import Grasp
-from gravgrasp_detector.tsdf import TSDFVolume
+from gravgrasp_detector.perception.detection import Grasp
+from gravgrasp_detector.perception.tsdf import TSDFVolume
 from sim_bridge.benchmark import refusal_study as study
 from sim_bridge.benchmark.protocol import Protocol
 from sim_bridge.benchmark.rounds import RoundTask

@@ -4,7 +4,7 @@ centre, as power grasps) and explicit negatives on the table beside it: small en
 that a few epochs take seconds, structured enough that learning is measurable. Used by the training and score-calibration tests."""
 import numpy as np
 
-from gravgrasp_detector import tsdf
+from gravgrasp_detector.perception import tsdf
 
 
 def _box_depth(intr, T_task_camera, box_min, box_max, table_z=0.05):

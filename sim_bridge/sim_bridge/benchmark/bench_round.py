@@ -19,7 +19,7 @@ import pathlib
 import statistics
 import sys
 
-from gravgrasp_detector.model_file import file_sha256
+from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
 from .protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution

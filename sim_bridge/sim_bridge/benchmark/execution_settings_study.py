@@ -34,7 +34,7 @@ import time
 import torch
 
 from gravgrasp_detector import atomic_files
-from gravgrasp_detector.model_file import file_sha256
+from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
 from .clearing import Refused, clear_table

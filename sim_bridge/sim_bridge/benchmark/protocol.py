@@ -63,7 +63,7 @@ class Protocol:
     relaxation_time_s: float | None = None
     grip_force_n: float = 40.0     # the paper's
     attempts_per_object: int = ATTEMPTS_PER_OBJECT
-    # detection's step 6 (gravgrasp_detector.detection): off, the paper's selection. Kept
+    # detection's step 6 (gravgrasp_detector.perception.detection): off, the paper's selection. Kept
     # out of config.json while off, so runs from before it existed stay resumable.
     clear_hand: bool = False
     # the executor's guarded approach (ExecutionLimits.close_on_contact_within_m, m): 0,

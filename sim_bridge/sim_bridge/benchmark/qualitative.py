@@ -33,9 +33,10 @@ import trimesh
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-from gravgrasp_detector import atomic_files, model_file, rotation, tsdf
-from gravgrasp_detector.model_file import ModelFileError
-from gravgrasp_detector.tsdf import CameraIntrinsics
+from gravgrasp_detector import atomic_files
+from gravgrasp_detector.perception import model_file, rotation, tsdf
+from gravgrasp_detector.perception.model_file import ModelFileError
+from gravgrasp_detector.perception.tsdf import CameraIntrinsics
 
 from ..physics.depth_rendering import DepthRenderer, look_at
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
@@ -86,7 +87,7 @@ def table_mesh():
 
 def render_scene(volume):
     """Render the paper's scene from its camera and fuse it into `volume`
-    (a gravgrasp_detector.tsdf.TSDFVolume). Returns (depth [m], T_task_camera)."""
+    (a gravgrasp_detector.perception.tsdf.TSDFVolume). Returns (depth [m], T_task_camera)."""
     renderer = DepthRenderer([table_mesh()] + [m for _, m in object_meshes()])
     intrinsics = CameraIntrinsics(IMAGE_WIDTH, IMAGE_HEIGHT, FOCAL_PX, FOCAL_PX,
                                   (IMAGE_WIDTH - 1) / 2, (IMAGE_HEIGHT - 1) / 2)

@@ -2,7 +2,7 @@
 
 Before any motion the executor checks the open hand, at the pre-grasp pose and swept along
 the approach to the grasp pose, against the occupied voxels of the TSDF
-(gravgrasp_detector.hand_clearance); the benchmark then tries the next-ranked grasp. On
+(gravgrasp_detector.perception.hand_clearance); the benchmark then tries the next-ranked grasp. On
 the held-out meshes one attempt of Ours in six started below a refused grasp (Binary's:
 one in seventy), and the soak's top grasp was refused for 3 voxels in a fingertip. Too
 strict a check throws away the network's best grasps; too loose a one lets the hand jam.
@@ -39,8 +39,8 @@ import torch
 
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.grasp_execution import plan_poses
-from gravgrasp_detector.hand_clearance import collisions
-from gravgrasp_detector.model_file import file_sha256
+from gravgrasp_detector.perception.hand_clearance import collisions
+from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
 from .clearing import Refused

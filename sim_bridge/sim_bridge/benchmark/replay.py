@@ -30,8 +30,8 @@ import numpy as np
 import torch
 import trimesh
 
-from gravgrasp_detector.detection import CLOSING_REGION_TCP, surface_voxel_centres
-from gravgrasp_detector.model_file import file_sha256
+from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP, surface_voxel_centres
+from gravgrasp_detector.perception.model_file import file_sha256
 
 from .clearing import clear_table
 from .protocol import METHODS, RANKING_VARIANTS, Protocol, weight_key

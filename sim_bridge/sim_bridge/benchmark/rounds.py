@@ -14,9 +14,9 @@ from concurrent.futures.process import BrokenProcessPool
 import numpy as np
 import torch
 
-from gravgrasp_detector.detection import DetectionOptions, detect_grasps
-from gravgrasp_detector.model_file import check_volume, file_sha256, load_model, ranking, training_target
-from gravgrasp_detector.tsdf import TSDFVolume
+from gravgrasp_detector.perception.detection import DetectionOptions, detect_grasps
+from gravgrasp_detector.perception.model_file import check_volume, file_sha256, load_model, ranking, training_target
+from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed

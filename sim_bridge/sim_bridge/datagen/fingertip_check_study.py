@@ -19,7 +19,7 @@ import pathlib
 
 import numpy as np
 
-from gravgrasp_detector import hand_clearance
+from gravgrasp_detector.perception import hand_clearance
 from robotiq_driver.hand_geometry import pad_tip_z_m
 
 from ..physics.hand_model import FingerKinematics

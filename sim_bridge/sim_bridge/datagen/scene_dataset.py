@@ -35,7 +35,7 @@ For scene i (seed from --seed and i only):
 6. label the TCP voxel of each grasp (best f_g per voxel).
 
 Stored per scene in `<out>/scenes/<i:06d>.npz`: tsdf (40,40,40) float32 (network
-input convention of gravgrasp_detector.tsdf), label_index (K,3) uint8,
+input convention of gravgrasp_detector.perception.tsdf), label_index (K,3) uint8,
 label_score (K,) float32 [N], label_e_x / label_e_z (K,3) float32, label_mode (K,)
 uint8 (power/precision), label_object (K,) uint8, label_grasp (K,) int32 and
 label_symmetry (K,) uint8 (provenance: row of that object's grasp table and the
@@ -61,7 +61,7 @@ import trimesh
 
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.grasp_execution import ExecutionLimits
-from gravgrasp_detector.tsdf import CameraIntrinsics, TSDFVolume
+from gravgrasp_detector.perception.tsdf import CameraIntrinsics, TSDFVolume
 
 from ..parallel import make_executor, run_tasks, task_seed
 from ..physics import hand_collision

@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 from pydrake.geometry import Box, Capsule, Convex, Cylinder, Mesh, Sphere
 
-from gravgrasp_detector.tsdf import CameraIntrinsics
+from gravgrasp_detector.perception.tsdf import CameraIntrinsics
 
 from ..physics.depth_rendering import DepthRenderer, look_at
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M

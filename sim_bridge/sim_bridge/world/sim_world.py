@@ -411,7 +411,7 @@ class SimWorld:
         return camera_pose(self.settings.camera)
 
     def intrinsics(self):
-        """gravgrasp_detector.tsdf.CameraIntrinsics of the camera (what TSDFVolume.integrate takes)."""
+        """gravgrasp_detector.perception.tsdf.CameraIntrinsics of the camera (what TSDFVolume.integrate takes)."""
         return camera_intrinsics(self.settings.camera)
 
     def render_depth(self) -> tuple:

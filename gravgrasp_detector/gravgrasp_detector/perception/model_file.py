@@ -27,7 +27,8 @@ import posixpath
 
 import torch
 
-from . import atomic_files, networks, tsdf
+from .. import atomic_files
+from . import networks, tsdf
 
 FORMAT = "gravgrasp-model"
 FORMAT_VERSION = 1
@@ -145,7 +146,7 @@ def load_model(path):
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ModelFileError(
             f"model file {path} is not a gravgrasp model file (no format={FORMAT!r}): "
-            "export it with gravgrasp_detector.model_file.save_model"
+            "export it with gravgrasp_detector.perception.model_file.save_model"
         )
     if payload.get("format_version") != FORMAT_VERSION:
         raise ModelFileError(
