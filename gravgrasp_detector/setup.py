@@ -23,7 +23,7 @@ setup(
             "bench_detect = gravgrasp_detector.bench_detect:main",
             "bench_train = gravgrasp_detector.bench_train:main",
             "bag_play = gravgrasp_detector.bag_replay:main",
-            "train = gravgrasp_detector.training:main",
+            "train = gravgrasp_detector.training.cli:main",
             "model_card = gravgrasp_detector.model_card:main",
             "execute = gravgrasp_detector.execute_node:main",
             "stack = gravgrasp_detector.stack_node:main",

@@ -59,7 +59,7 @@ python -m sim_bridge.datagen.data_report models/grasp_tables_v2 --scenes out/sce
 
 train() {  # train VARIANT [OPTION]: one model into out/training_v3/VARIANT (resumes per epoch)
   echo "[chain] $(date -u +%FT%TZ) train $1"
-  python -m gravgrasp_detector.training --data out/scenes_v3 --out "out/training_v3/$1" --epochs 15 \
+  python -m gravgrasp_detector.training.cli --data out/scenes_v3 --out "out/training_v3/$1" --epochs 15 \
     --threads "$workers" --no-progress --negative-weight=250 "${@:2}"
 }
 train precision_only --data-subset=precision-only

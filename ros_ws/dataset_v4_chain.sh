@@ -50,7 +50,7 @@ sys.exit(0 if f'--out {sys.argv[2]} ' in cmd + ' ' else 1)" "models/$2" "out/tra
 train() {  # train VARIANT FILE [OPTION]: one model into out/training_v4/VARIANT (resumes per epoch)
   if shipped "$1" "$2"; then echo "[chain] $1: models/$2 is its model (shipped): not retrained"; return; fi
   echo "[chain] $(date -u +%FT%TZ) train $1"
-  python -m gravgrasp_detector.training --data out/scenes_v4 --out "out/training_v4/$1" --epochs 15 \
+  python -m gravgrasp_detector.training.cli --data out/scenes_v4 --out "out/training_v4/$1" --epochs 15 \
     --threads "$workers" --no-progress --negative-weight=250 "${@:3}"
 }
 variants=(ours:gravgrasp.pt binary:gravgrasp_binary.pt:--target=binary

@@ -44,7 +44,7 @@ python -m sim_bridge.datagen.data_report "$tables" --scenes out/scenes_v5
 
 train() {  # train VARIANT [OPTION]: into out/training_v5/VARIANT (resumes per epoch)
   echo "[chain] $(date -u +%FT%TZ) train $1"
-  python -m gravgrasp_detector.training --data out/scenes_v5 --out "out/training_v5/$1" --epochs 15 \
+  python -m gravgrasp_detector.training.cli --data out/scenes_v5 --out "out/training_v5/$1" --epochs 15 \
     --threads "$workers" --no-progress --negative-weight=250 "${@:2}"
 }
 calibrate() {  # calibrate MODEL SCENES NAME: validation calibration (kept once done)

@@ -21,8 +21,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from .perception import networks
-from .training_config import TrainConfig
-from .training_losses import losses, training_outputs
+from .training.config import TrainConfig
+from .training.losses import losses, training_outputs
 
 
 def synthetic_batch(batch_size, rng, labels=150, negatives=250, resolution=40):

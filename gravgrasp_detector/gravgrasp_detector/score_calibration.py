@@ -34,10 +34,10 @@ from scipy.stats import spearmanr
 
 from .perception import model_file
 from .atomic_files import save_figure, save_json
-from .training_config import TrainConfig
+from .training.config import TrainConfig
 from .perception.detection import DetectionOptions, detect_grasps, near_surface_mask
-from .training_losses import auroc
-from .training_scenes import G_MPS2, DataError, load_scene, split_scenes
+from .training.losses import auroc
+from .training.scenes import G_MPS2, DataError, load_scene, split_scenes
 
 
 @torch.no_grad()

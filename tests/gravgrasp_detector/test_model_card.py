@@ -10,9 +10,10 @@ import shutil
 import numpy as np
 import pytest
 
-from gravgrasp_detector import model_card, training_loop
+from gravgrasp_detector import model_card
+from gravgrasp_detector.training import loop as training_loop
 from gravgrasp_detector.perception import model_file
-from gravgrasp_detector.training_config import TrainConfig
+from gravgrasp_detector.training.config import TrainConfig
 from box_scenes import make_scene
 
 pytestmark = pytest.mark.slow  # the fixture trains a model

@@ -5,8 +5,8 @@ import lzma
 import numpy as np
 import pytest
 
-from gravgrasp_detector import scene_archive, training_scenes
-from gravgrasp_detector.training_config import TrainConfig
+from gravgrasp_detector.training import scene_archive, scenes as training_scenes
+from gravgrasp_detector.training.config import TrainConfig
 
 from box_scenes import write_scenes
 
@@ -54,7 +54,7 @@ def test_a_training_machine_without_open3d_unpacks_trains_and_writes_a_model(tmp
     scene_archive.pack(write_scenes(tmp_path / "scenes", 4, seed=5), tmp_path / "a.npz.xz")
     script = (
         "import sys; sys.modules['open3d'] = None\n"
-        "from gravgrasp_detector import scene_archive, training\n"
+        "from gravgrasp_detector.training import scene_archive, cli as training\n"
         f"scene_archive.unpack({str(tmp_path / 'a.npz.xz')!r}, {str(tmp_path / 'copy')!r})\n"
         f"sys.exit(training.main(['--data', {str(tmp_path / 'copy')!r}, '--out', {str(tmp_path / 'run')!r},"
         " '--epochs', '1', '--batch-size', '2', '--threads', '1', '--no-progress']))\n")

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from gravgrasp_detector import bench_train, training, training_loop, training_losses, training_scenes
+from gravgrasp_detector import bench_train
+from gravgrasp_detector.training import cli as training, loop as training_loop, losses as training_losses, scenes as training_scenes
 from gravgrasp_detector.perception import model_file, networks, rotation
-from gravgrasp_detector.training_config import TrainConfig
+from gravgrasp_detector.training.config import TrainConfig
 
 from box_scenes import write_scenes
 

@@ -39,7 +39,7 @@ import numpy as np
 
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.detection import Grasp
-from gravgrasp_detector.training_scenes import G_MPS2  # the binary target's m g
+from gravgrasp_detector.training.scenes import G_MPS2  # the binary target's m g
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 from ..datagen.object_grasps import MODE_NAMES, load_table

@@ -12,7 +12,7 @@ import pathlib
 import numpy as np
 import torch
 
-from .training_config import TrainConfig
+from .config import TrainConfig
 
 G_MPS2 = 9.81
 # Mode names as sim_bridge.datagen.object_grasps writes them; scene files carry their own

@@ -19,8 +19,8 @@ import torch
 import torch.nn.functional as F
 from scipy.stats import rankdata
 
-from .perception import rotation
-from .training_config import TrainConfig
+from ..perception import rotation
+from .config import TrainConfig
 
 
 def stacked(batch, key, device):

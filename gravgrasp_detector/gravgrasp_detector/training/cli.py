@@ -15,10 +15,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .perception import rotation
-from .training_config import TrainConfig
-from .training_scenes import DataError
-from .training_loop import train
+from ..perception import rotation
+from .config import TrainConfig
+from .scenes import DataError
+from .loop import train
 
 
 def main(argv=None) -> int:

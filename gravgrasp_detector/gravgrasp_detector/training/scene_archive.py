@@ -1,8 +1,8 @@
 """One compact file holding the training part of many scene files, to move a dataset
 to a training machine (a GPU box) that has no simulator to regenerate it.
 
-    python -m gravgrasp_detector.scene_archive pack out/scenes_v2 scenes.npz.xz
-    python -m gravgrasp_detector.scene_archive unpack scenes.npz.xz out/scenes_v2
+    python -m gravgrasp_detector.training.scene_archive pack out/scenes_v2 scenes.npz.xz
+    python -m gravgrasp_detector.training.scene_archive unpack scenes.npz.xz out/scenes_v2
 
 A scene file (sim_bridge's scene stage) is ~57 KB; the archive keeps what training
 reads (`training_scenes.load_scene`): the TSDF as float16 (at most 2.5e-4 from the
@@ -21,8 +21,8 @@ import sys
 
 import numpy as np
 
-from . import atomic_files
-from .training_scenes import DataError
+from .. import atomic_files
+from .scenes import DataError
 
 # per-label arrays, concatenated over scenes
 LABEL_KEYS = ("label_index", "label_score", "label_e_x", "label_e_z", "label_mode")
@@ -78,7 +78,7 @@ def unpack(archive_path, scene_dir) -> int:
             arrays = {k: z[k] for k in z.files}
     except (OSError, lzma.LZMAError, ValueError) as err:
         raise DataError(f"{archive_path} is not a scene archive ({err}); make it with "
-                        "'python -m gravgrasp_detector.scene_archive pack'") from None
+                        "'python -m gravgrasp_detector.training.scene_archive pack'") from None
     label_end = np.cumsum(arrays["label_count"])
     negative_end = np.cumsum(arrays["negative_count"])
     for i, name in enumerate(arrays["names"]):

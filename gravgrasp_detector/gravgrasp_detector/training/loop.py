@@ -16,11 +16,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from . import atomic_files
-from .perception import model_file, networks, rotation, tsdf
-from .training_config import TrainConfig
-from .training_scenes import DataError, load_scene, make_example, select_labels, split_scenes
-from .training_losses import angular_error_deg, auroc, losses, training_outputs
+from .. import atomic_files
+from ..perception import model_file, networks, rotation, tsdf
+from .config import TrainConfig
+from .scenes import DataError, load_scene, make_example, select_labels, split_scenes
+from .losses import angular_error_deg, auroc, losses, training_outputs
 
 
 @torch.no_grad()
