@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from gravgrasp_detector.arm_reachability import TWIN, ArmReachability
+from gravgrasp_detector.execution.reachability import TWIN, ArmReachability
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy import ndimage
 
-from gravgrasp_detector import grasp_execution
+from gravgrasp_detector.execution import executor as grasp_execution
 from gravgrasp_detector.perception import detection, hand_clearance, networks, rotation
 from gravgrasp_detector.perception.tsdf import InputError
 

@@ -11,8 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from gravgrasp_detector import grasp_execution as ge
-from gravgrasp_detector.arm_reachability import ArmReachability
+from gravgrasp_detector.execution import executor as ge
+from gravgrasp_detector.execution.reachability import ArmReachability
 from robotiq_driver.emulator.emulated_gripper import FingerReading, GripperEmulator, KinematicFingers
 from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from robotiq_driver.gripper_client import Robotiq2F85

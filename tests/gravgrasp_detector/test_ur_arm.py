@@ -1,4 +1,4 @@
-"""The UR arm adapter's logic (gravgrasp_detector.ur_arm) against a recording stand-in
+"""The UR arm adapter's logic (gravgrasp_detector.execution.ur_arm) against a recording stand-in
 of ur_rtde's interfaces (tests/support/fake_rtde.py): frames, the protective box, speed
 limits, refusals before motion, stop, timeouts, a lost link and the reconnect. The
 failure paths (stops, watchdog, latch): test_ur_arm_failures.py."""
@@ -11,9 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fake_rtde import FakeURController
-from gravgrasp_detector.ur_arm import ConnectionLost, URArm
-from gravgrasp_detector.ur_arm_settings import URArmSettings, xyz_yaw_to_matrix
-from gravgrasp_detector.ur_controller import matrix_to_ur_pose, pose_error
+from gravgrasp_detector.execution.ur_arm import ConnectionLost, URArm
+from gravgrasp_detector.execution.ur_arm_settings import URArmSettings, xyz_yaw_to_matrix
+from gravgrasp_detector.execution.ur_controller import matrix_to_ur_pose, pose_error
 
 DOWN = Rotation.from_euler("x", 180, degrees=True).as_matrix()  # TCP z pointing down
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from fake_rtde import FakeControl, FakeURController
-from gravgrasp_detector.ur_arm import ConnectionLost, TCPMismatch
-from gravgrasp_detector.ur_controller import ur_pose_to_matrix
-from gravgrasp_detector.ur_kinematics import flange_in_base
+from gravgrasp_detector.execution.ur_arm import ConnectionLost, TCPMismatch
+from gravgrasp_detector.execution.ur_controller import ur_pose_to_matrix
+from gravgrasp_detector.execution.ur_kinematics import flange_in_base
 from test_ur_arm import _wait, make_arm, tcp
 
 

@@ -3,8 +3,8 @@ model's (arm_reachability, Drake + MuJoCo Menagerie's UR5e), in the controller's
 import numpy as np
 import pytest
 
-from gravgrasp_detector.arm_reachability import ArmReachability
-from gravgrasp_detector.ur_kinematics import flange_in_base
+from gravgrasp_detector.execution.reachability import ArmReachability
+from gravgrasp_detector.execution.ur_kinematics import flange_in_base
 
 
 def test_dh_flange_is_the_arm_models_flange():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from gravgrasp_detector.grasp_execution import ExecutionLimits
+from gravgrasp_detector.execution.executor import ExecutionLimits
 from sim_bridge.datagen import fingertip_check_study
 from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
 from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table

@@ -10,7 +10,7 @@ the empty-closed calibration calls it DROPPED, and the ground truth agrees.
 import numpy as np
 import pytest
 
-from gravgrasp_detector import grasp_execution as ge
+from gravgrasp_detector.execution import executor as ge
 from sim_bridge.benchmark.sim_cell import SimArm, SimGripper
 from sim_bridge.world import SceneConfig, SimWorld, WorldSettings
 

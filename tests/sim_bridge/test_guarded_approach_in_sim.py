@@ -7,7 +7,7 @@ the hand closes 1 mm back from where it stopped and lifts the cylinder.
 """
 import pytest
 
-from gravgrasp_detector import grasp_execution as ge
+from gravgrasp_detector.execution import executor as ge
 from sim_bridge.benchmark.sim_cell import SimArm, SimGripper
 from sim_bridge.physics.objects import procedural_object
 from sim_bridge.physics.scenes import TABLE_HEIGHT_M

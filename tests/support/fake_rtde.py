@@ -57,7 +57,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from gravgrasp_detector.ur_kinematics import flange_in_base
+from gravgrasp_detector.execution.ur_kinematics import flange_in_base
 
 RUNNING, NORMAL, REDUCED, PROTECTIVE_STOP, ROBOT_EMERGENCY_STOP, SYSTEM_EMERGENCY_STOP = 7, 1, 2, 3, 7, 6
 

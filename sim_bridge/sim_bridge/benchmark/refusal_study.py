@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from gravgrasp_detector import atomic_files
-from gravgrasp_detector.grasp_execution import plan_poses
+from gravgrasp_detector.execution.executor import plan_poses
 from gravgrasp_detector.perception.hand_clearance import collisions
 from gravgrasp_detector.perception.model_file import file_sha256
 

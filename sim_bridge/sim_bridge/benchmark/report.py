@@ -13,7 +13,7 @@ import os
 import numpy as np
 
 from gravgrasp_detector import atomic_files
-from gravgrasp_detector.grasp_execution import GraspExecutor
+from gravgrasp_detector.execution.executor import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
 from .clearing import success_rates
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, execution_name, execution_of, weight_key

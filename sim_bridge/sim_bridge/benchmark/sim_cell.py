@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gravgrasp_detector.grasp_execution import (Abort, ArmMotion, ExecutionLimits, GraspExecutor, check_limits,
+from gravgrasp_detector.execution.executor import (Abort, ArmMotion, ExecutionLimits, GraspExecutor, check_limits,
                                                 plan_poses, scene_collision)
 from robotiq_driver.gripper_client import GripperTimeout
 from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus

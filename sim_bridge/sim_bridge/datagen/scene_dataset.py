@@ -60,7 +60,7 @@ import numpy as np
 import trimesh
 
 from gravgrasp_detector import atomic_files
-from gravgrasp_detector.grasp_execution import ExecutionLimits
+from gravgrasp_detector.execution.executor import ExecutionLimits
 from gravgrasp_detector.perception.tsdf import CameraIntrinsics, TSDFVolume
 
 from ..parallel import make_executor, run_tasks, task_seed

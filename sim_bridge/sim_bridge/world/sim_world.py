@@ -21,7 +21,7 @@ object in a side grasp). Gravity is off for the hand only (the arm carries it). 
 fingers stay fully dynamic (`fingers`) and the contacts are SAP's. The net contact force
 on the hand links (what a wrist force/torque sensor reads) stops a motion when its
 magnitude has grown by more than `max_contact_force_n` since the motion began, the rule
-the UR adapter (gravgrasp_detector.ur_arm) applies to its arm's TCP force: a lift that
+the UR adapter (gravgrasp_detector.execution.ur_arm) applies to its arm's TCP force: a lift that
 starts with the closed fingers pressing on the table is not stopped by the press it
 relieves, nor a shake by the weight already in the hand.
 

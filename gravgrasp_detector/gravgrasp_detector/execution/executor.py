@@ -53,8 +53,8 @@ from robotiq_driver import grip_calibration
 from robotiq_driver.gripper_client import GripperError, GripperTimeout
 from robotiq_driver.gripper_registers import ObjectStatus
 
-from .perception import hand_clearance
-from .poses import PoseError, matrix_from_pose
+from ..perception import hand_clearance
+from ..poses import PoseError, matrix_from_pose
 
 
 class ResultCode(enum.IntEnum):
