@@ -20,7 +20,9 @@ second after the answer). They must agree; a disagreement is printed as an ERROR
 listed in the report, and makes the command exit 1.
 
 Prints one line per attempt and `SR=... CR=...`; writes `report.json`, a PNG per
-attempt (the depth image with the grasps) and `summary.png` (one page). All
+attempt (the depth image with the grasps: the one executed circled, those the executor
+refused before moving crossed out; each attempt's `rank` and `refused` in the report say
+the same) and `summary.png` (one page). All
 processes stop on exit and on Ctrl-C.
 
 Reproducibility: scene, detection and the Drake physics are deterministic for a
@@ -34,6 +36,7 @@ runs can be compared.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import pathlib
@@ -48,10 +51,10 @@ from geometry_msgs.msg import PoseStamped
 from matplotlib.figure import Figure
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
+from gravgrasp_detector.poses import matrix_from_pose
 from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
 
@@ -134,35 +137,74 @@ class Client:
         return None
 
 
-def save_scene_png(client, grasps, path):
-    """The camera's depth image with the detected TCP positions projected, coloured by
-    gravity-rejection score; the executed (top) grasp circled."""
-    depth_msg, info, pose = client.depth, client.info, client.camera_pose
-    if depth_msg is None or info is None or pose is None:
-        return False
-    dtype = np.uint16 if depth_msg.encoding == "16UC1" else np.float32
-    depth = np.frombuffer(bytes(depth_msg.data), dtype).reshape(depth_msg.height, depth_msg.width).astype(float)
-    if dtype is np.uint16:
-        depth = depth / 1000.0
-    q, t = pose.pose.orientation, pose.pose.position
-    R = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    p_task = np.array([[g.pose.position.x, g.pose.position.y, g.pose.position.z] for g in grasps.grasps])
-    scores = np.array([g.gravity_rejection_score for g in grasps.grasps])
-    p_cam = (p_task - [t.x, t.y, t.z]) @ R  # task -> camera optical frame
-    k = info.k
-    u = k[0] * p_cam[:, 0] / p_cam[:, 2] + k[2]
-    v = k[4] * p_cam[:, 1] / p_cam[:, 2] + k[5]
+@dataclasses.dataclass(frozen=True)
+class CameraView:
+    """What the camera saw when the grasps were detected: depth [m] (0 = no return), the
+    pinhole K (3x3) and the camera's pose in the task frame (4x4, optical frame)."""
+
+    depth_m: np.ndarray
+    K: np.ndarray
+    T_task_camera: np.ndarray
+
+    @classmethod
+    def from_client(cls, client):
+        """The client's latest depth image, camera info and camera pose; None if one is missing."""
+        depth_msg, info, pose = client.depth, client.info, client.camera_pose
+        if depth_msg is None or info is None or pose is None:
+            return None
+        dtype = np.uint16 if depth_msg.encoding == "16UC1" else np.float32
+        depth = np.frombuffer(bytes(depth_msg.data), dtype).reshape(depth_msg.height, depth_msg.width).astype(float)
+        if dtype is np.uint16:
+            depth = depth / 1000.0
+        q, t = pose.pose.orientation, pose.pose.position
+        return cls(depth, np.asarray(info.k, float).reshape(3, 3),
+                   matrix_from_pose((t.x, t.y, t.z), (q.x, q.y, q.z, q.w)))
+
+    def pixels(self, points_task) -> tuple:
+        """(u, v): pixel coordinates of task-frame points (N, 3)."""
+        T = np.linalg.inv(self.T_task_camera)
+        p_cam = np.asarray(points_task, float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+        K = self.K
+        return K[0, 0] * p_cam[:, 0] / p_cam[:, 2] + K[0, 2], K[1, 1] * p_cam[:, 1] / p_cam[:, 2] + K[1, 2]
+
+
+def attempt_title(scores_n, executed, refused, outcome="") -> str:
+    """The attempt picture's title: how many grasps, which rank the executor executed and
+    its score (None: it executed none), and the ranks it refused before moving."""
+    if not len(scores_n):
+        return "no grasps"
+    if executed is None:
+        head = f"{len(scores_n)} grasps; none executed"
+    else:
+        head = f"{len(scores_n)} grasps; executed #{executed + 1}: {scores_n[executed]:.1f} N"
+        head += f" ({outcome})" if outcome else ""
+    if not refused:
+        return head
+    listed = ", ".join(f"#{r + 1} ({scores_n[r]:.1f} N)" for r in refused[:4])
+    return head + "\nrefused before motion: " + listed + (f" and {len(refused) - 4} more" if len(refused) > 4 else "")
+
+
+def attempt_figure(view, positions_task, scores_n, executed, refused, outcome="") -> Figure:
+    """The camera's depth image with every detected grasp's TCP projected, coloured by
+    gravity-rejection score; the executed grasp circled, the refused ones crossed out."""
+    u, v = view.pixels(positions_task)
     fig = Figure(figsize=(6.4, 4.8), dpi=100)  # no pyplot: no backend, no global figure list
     ax = fig.subplots()
-    ax.imshow(np.where(depth > 0, depth, np.nan), cmap="gray")
-    sc = ax.scatter(u, v, c=scores, cmap="viridis", s=18)
-    ax.scatter(u[:1], v[:1], s=160, facecolors="none", edgecolors="red", linewidths=2)
+    ax.imshow(np.where(view.depth_m > 0, view.depth_m, np.nan), cmap="gray")
+    sc = ax.scatter(u, v, c=scores_n, cmap="viridis", s=18)
+    if refused:
+        ax.scatter(u[refused], v[refused], s=90, marker="x", color="orange", linewidths=2,
+                   label="refused before motion")
+    if executed is not None:
+        ax.scatter(u[[executed]], v[[executed]], s=160, facecolors="none", edgecolors="red", linewidths=2,
+                   label="executed")
+    if refused or executed is not None:
+        ax.legend(loc="lower right", fontsize=8)
     fig.colorbar(sc, ax=ax, label="gravity-rejection score [N]")
     ax.set_axis_off()
-    ax.set_title(f"{len(scores)} grasps; executed: {scores[0]:.1f} N" if len(scores) else "no grasps")
+    ax.set_title(attempt_title(scores_n, executed, refused, outcome), fontsize=10)
     fig.tight_layout()
-    fig.savefig(path)
-    return True
+    return fig
 
 
 def nearest_object(states, p):
@@ -181,7 +223,8 @@ def judge(states):
 
 def save_summary_png(report, path):
     """One page: each attempt's executed score against the object's weight, with every
-    detected grasp's score behind it; colour = outcome, label = mode."""
+    detected grasp's score behind it (crossed: refused before motion); colour = outcome,
+    label = mode."""
     attempts = report["attempts"]
     fig = Figure(figsize=(8.27, 5.0), dpi=100)
     ax = fig.subplots()
@@ -191,6 +234,9 @@ def save_summary_png(report, path):
         ax.scatter([k], [a["score_n"]], s=90, color=colour, edgecolors="black", zorder=3)
         ax.annotate(f"{a['mode'] or '-'}\n{a['result']}", (k, a["score_n"]), textcoords="offset points",
                     xytext=(10, -4), fontsize=8)
+    refused = [(k, r["score_n"]) for k, a in enumerate(attempts, 1) for r in a.get("refused", [])]
+    if refused:
+        ax.scatter(*zip(*refused), s=40, marker="x", color="orange", zorder=2, label="refused before motion")
     weight = report["object_mass_kg"] * G_MPS2
     ax.axhline(weight, color="tab:blue", linestyle="--", label=f"object weight {weight:.1f} N")
     ax.axhline(report["min_score_n"], color="tab:orange", linestyle=":",
@@ -219,6 +265,8 @@ class DemoCell:
         self.client, self.args, self.out, self.report = client, args, out, report
         self.states = client.states  # before the current attempt: the grasped object's name and mass
         self.n_attempts = 0
+        self.n_views = 0  # detections with grasps: one attempt picture each
+        self._view, self._grasps, self._refused = None, None, []  # the last detection's, for its picture
         self.grasps_detected, self.last_refusal = 0, ""
         self._fallen = set()
         self._tried = 0  # grasps of the current view sent to the executor
@@ -242,14 +290,27 @@ class DemoCell:
         grasps = client.fresh_grasps(timeout_s=60)
         if grasps is None or not grasps.grasps:
             return grasps, []
-        save_scene_png(client, grasps, self.out / f"attempt_{self.n_attempts + 1:02d}.png")
+        # Drawn once the executor has answered: the picture shows the grasp it executed.
+        self._view, self._grasps, self._refused = CameraView.from_client(client), grasps, []
         # While the arm moves nobody needs new views: fusing and detecting them would
         # take CPU from the physics. (Paused only now: the executor wants a TSDF
         # younger than its max_tsdf_age_s.)
         client.call(SetBool, "tsdf/set_integrating", SetBool.Request(data=False), 10)
         self._t0, self._tried, self.grasps_detected = time.monotonic(), 0, len(grasps.grasps)
+        self.n_views += 1
         client.modes_seen = {}
         return grasps, list(grasps.grasps)
+
+    def save_attempt_png(self, executed, outcome=""):
+        """attempt_<k>.png (k: the view's number) of the last detection: `executed` (a rank,
+        or None when the executor refused every grasp) circled, the refused ones crossed."""
+        if self._view is None:
+            return
+        grasps = self._grasps.grasps
+        positions = [[g.pose.position.x, g.pose.position.y, g.pose.position.z] for g in grasps]
+        scores = np.array([g.gravity_rejection_score for g in grasps], float)
+        fig = attempt_figure(self._view, positions, scores, executed, [r["rank"] for r in self._refused], outcome)
+        fig.savefig(self.out / f"attempt_{self.n_views:02d}.png")
 
     def execute(self, top, grasps) -> dict:
         """One /execute_grasp call. A grasp the executor refuses before moving (hand in
@@ -262,9 +323,12 @@ class DemoCell:
         response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
         if response.result_code in REFUSED_BEFORE_MOTION:
             self.last_refusal = response.message
+            self._refused.append({"rank": rank, "score_n": float(top.gravity_rejection_score),
+                                  "message": response.message})
             raise Refused(response.message)
         result = RESULT_NAMES.get(response.result_code, str(response.result_code))
         if response.result_code in FAULTS:
+            self.save_attempt_png(rank, result.lower())
             print(f"executor fault on grasp #{rank + 1}: {result} ({response.message}): round ends", flush=True)
             raise Fault(f"{result}: {response.message}")
         after = client.states_after(1.0)
@@ -288,7 +352,8 @@ class DemoCell:
                    "object": target, "weight_n": round(weight_n, 2), "mode": mode,
                    "result": result, "message": response.message, "outcome": outcome,
                    "lifted": lifted, "executor_success": bool(response.success), "ground_truth_lifted": truth,
-                   "wall_s": round(time.monotonic() - self._t0, 1)}
+                   "refused": list(self._refused), "wall_s": round(time.monotonic() - self._t0, 1)}
+        self.save_attempt_png(rank, outcome)
         self.n_attempts += 1
         k = self.n_attempts
         print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
@@ -344,6 +409,8 @@ def run(args) -> dict:
         cell = DemoCell(client, args, out, report)
         # The benchmark's rules: when a round ends, what counts as an attempt.
         record = clear_table(cell, n_objects)
+        if record["end"] == "no_feasible_grasp":
+            cell.save_attempt_png(None)  # every grasp of the last view crossed out
         report.update(record)  # end, attempts, fell_off (+ fault)
         end_line = {"table_clear": "table clear",
                     "consecutive_failures": f"{CONSECUTIVE_FAILURES_END} failures in a row: round ends",
