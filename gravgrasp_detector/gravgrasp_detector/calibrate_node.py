@@ -47,8 +47,8 @@ from std_srvs.srv import Trigger
 from . import cell_file
 from .bag_replay import read_bag
 from .cell_config import CellConfigError, convert_camera_pose, load_sections
-from .calibration_capture import CaptureSettings, StillPoseCapture
-from .camera_calibration import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
+from .calibration.capture import CaptureSettings, StillPoseCapture
+from .calibration.hand_eye import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
 from .poses import PoseError
 from .ros_interface import described, matrix_from_pose_msg, stamp_s
 

@@ -1,4 +1,4 @@
-"""Hand-eye calibration (gravgrasp_detector.camera_calibration) on ChArUco images
+"""Hand-eye calibration (gravgrasp_detector.calibration.hand_eye) on ChArUco images
 rendered at known poses with pixel noise (tests/support/board_views.py): the recovered camera
 pose must be within 2 mm and 0.5 deg of the truth, eye-to-hand and eye-in-hand; and
 one clear sentence for each bad input."""
@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from board_views import DIST, HEIGHT, K, WIDTH, BoardRenderer, look_at, pose_difference, transform
-from gravgrasp_detector.camera_calibration import (CalibrationError, CharucoTarget, calibrate, detect_board,
+from gravgrasp_detector.calibration.hand_eye import (CalibrationError, CharucoTarget, calibrate, detect_board,
                                                    solve_hand_eye)
 
 TARGET = CharucoTarget(squares_x=7, squares_y=5, square_m=0.030, marker_m=0.022, dictionary="DICT_5X5_100")

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from gravgrasp_detector.camera_calibration import CharucoTarget
+from gravgrasp_detector.calibration.hand_eye import CharucoTarget
 
 WIDTH, HEIGHT = 1280, 720
 K = np.array([[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]])
