@@ -1,0 +1,50 @@
+"""README's results table is what `python -m sim_bridge.benchmark.results_table` prints
+from the committed results, and those results are the shipped models'."""
+
+import hashlib
+import json
+import re
+from pathlib import Path
+
+from sim_bridge.benchmark import results_table
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def readme_table() -> list:
+    text = (ROOT / "README.md").read_text()
+    m = re.search(r"<!-- results-table: [^>]*-->\n(.*?)\n<!-- /results-table -->", text, re.S)
+    assert m, "README.md has no <!-- results-table --> block"
+    return m.group(1).split("\n")
+
+
+def test_readme_table_is_what_the_command_prints():
+    assert readme_table() == results_table.table_lines(ROOT), \
+        "README.md's results table differs: paste `python -m sim_bridge.benchmark.results_table` into it"
+
+
+def test_a_cell_holds_sr_interval_and_the_difference_to_binary(tmp_path):
+    run = tmp_path / "sim_bridge/results/heldout_v4"
+    run.mkdir(parents=True)
+    (tmp_path / "sim_bridge/results/procedural_v4").mkdir(parents=True)
+    rows = [{"method": "ours", "mass_kg": 1.5, "SR": 0.5, "SR_ci95": [0.3, 0.7], "successes": 10, "attempts": 20},
+            {"method": "binary", "mass_kg": 1.5, "SR": 0.25, "SR_ci95": [0.11, 0.47], "successes": 5, "attempts": 20}]
+    comparisons = [{"method": "ours", "mass_kg": 1.5, "diff": 0.25, "p_value": 0.0952}]
+    for d in (run, tmp_path / "sim_bridge/results/procedural_v4"):
+        (d / "results.json").write_text(json.dumps(rows))
+        (d / "comparisons.json").write_text(json.dumps(comparisons))
+    lines = results_table.table_lines(tmp_path)
+    assert lines[0] == "| objects | method | SR 1.5 kg |"
+    assert lines[2] == "| held-out meshes | **Ours** | 50.0 % (10/20; 30–70), +25.0 pts, p = 0.095 |"
+    assert lines[3] == "| held-out meshes | Binary | 25.0 % (5/20; 11–47) |"
+    assert len(lines) == 6
+
+
+def test_the_tabled_runs_are_the_shipped_models():
+    shipped = {"ours": "gravgrasp.pt", "binary": "gravgrasp_binary.pt"}
+    for _, run in results_table.RUNS:
+        for method, model in shipped.items():
+            sha = hashlib.sha256((ROOT / "models" / model).read_bytes()).hexdigest()
+            rounds = list((ROOT / run / "rounds" / method).rglob("*.json"))
+            assert rounds and all(json.loads(p.read_text())["model_sha256"] == sha for p in rounds), \
+                f"{run}'s {method} rounds were not run with the shipped models/{model}"
