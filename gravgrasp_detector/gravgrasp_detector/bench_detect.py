@@ -26,7 +26,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from .perception import detection, model_file, networks
 from .perception.tsdf import CameraIntrinsics, TSDFVolume, depth_from_millimetres
-from .tsdf_node import camera_pose_from_msg, depth_from_image_msg
+from .ros.tsdf_node import camera_pose_from_msg, depth_from_image_msg
 
 ROOT = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", os.getcwd()))
 

@@ -9,7 +9,7 @@ import torch
 
 from gravgrasp_detector.perception import model_file, networks
 from gravgrasp_detector.perception.tsdf import TSDFVolume
-from gravgrasp_detector.tsdf_node import VOLUME_QOS
+from gravgrasp_detector.ros.tsdf_node import VOLUME_QOS
 
 import ros_testing
 

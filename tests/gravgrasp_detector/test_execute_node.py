@@ -11,7 +11,7 @@ import threading
 import pytest
 from gravgrasp_msgs.msg import Grasp, GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
-from gravgrasp_detector.tsdf_node import VOLUME_QOS
+from gravgrasp_detector.ros.tsdf_node import VOLUME_QOS
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from std_srvs.srv import SetBool

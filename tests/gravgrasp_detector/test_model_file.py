@@ -99,7 +99,7 @@ def test_paths_are_stored_relative_to_the_project_or_not_at_all(tmp_path, monkey
 def test_detect_startup_says_one_short_fact_per_line():
     import pathlib
 
-    from gravgrasp_detector.detect_node import startup_lines
+    from gravgrasp_detector.ros.detect_node import startup_lines
 
     shipped = pathlib.Path(__file__).resolve().parents[2] / "models" / "gravgrasp.pt"
     _, meta = model_file.load_model(shipped)
@@ -115,7 +115,7 @@ def test_detect_startup_says_one_short_fact_per_line():
 def test_ranking_follows_the_model_unless_asked_and_refuses_newtons_of_a_binary_model():
     import pathlib
 
-    from gravgrasp_detector.detect_node import startup_lines
+    from gravgrasp_detector.ros.detect_node import startup_lines
 
     score_model = {"training_data": {"target": "gravity-score"}}
     binary_model = {"training_data": {"target": "binary"}}

@@ -17,7 +17,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from fake_rtde import FakeURController
-from gravgrasp_detector.ur_arm_node import URArmNode
+from gravgrasp_detector.ros.ur_arm_node import URArmNode
 from ros_testing import wait_until
 
 

@@ -7,7 +7,7 @@ import threading
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from gravgrasp_detector.ros_interface import spin
+from gravgrasp_detector.ros.interface import spin
 from gravgrasp_msgs.srv import MoveToPose
 
 

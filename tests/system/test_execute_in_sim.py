@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from gravgrasp_detector.tsdf_node import VOLUME_QOS
+from gravgrasp_detector.ros.tsdf_node import VOLUME_QOS
 from ros_testing import BackgroundSpin, spin_until, wait_until
 
 pytestmark = [pytest.mark.drake, pytest.mark.ros]  # ros: its module fixture starts the nodes

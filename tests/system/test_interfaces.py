@@ -10,7 +10,7 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 
 import interface_peer
-from gravgrasp_detector import bag_replay
+from gravgrasp_detector.ros import bag_replay
 from ros_testing import ROOT, call_service, spin_until
 
 
@@ -108,7 +108,7 @@ def test_bag_play_names_a_missing_topic_and_a_damaged_bag_in_one_line(tmp_path):
     for args, expected in [([str(bag), "--rate", "0", "--topics", "/camera/depth/image_raw", "/depth"],
                             "has no topic /depth; its topics: /camera/depth/camera_info, /camera/depth/image_raw"),
                            ([str(damaged)], "cannot be read as a rosbag2 directory")]:
-        run = subprocess.run([sys.executable, "-m", "gravgrasp_detector.bag_replay", *args],
+        run = subprocess.run([sys.executable, "-m", "gravgrasp_detector.ros.bag_replay", *args],
                              capture_output=True, text=True, timeout=60)
         assert run.returncode == 1, run.stderr
         lines = run.stderr.strip().splitlines()

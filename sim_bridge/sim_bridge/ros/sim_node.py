@@ -43,7 +43,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_detector.poses import PoseError
-from gravgrasp_detector.ros_interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
+from gravgrasp_detector.ros.interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
 from robotiq_driver.emulator.emulated_gripper import GripperEmulator
 from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 

@@ -15,7 +15,7 @@ from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .ros_interface import pose_msg_from_matrix
+from .interface import pose_msg_from_matrix
 
 HALF_OPENING_M = 0.0425
 PALM_Z_M = -0.05

@@ -47,10 +47,10 @@ from std_srvs.srv import Trigger
 from . import cell_file
 from .bag_replay import read_bag
 from .cell_config import CellConfigError, convert_camera_pose, load_sections
-from .calibration.capture import CaptureSettings, StillPoseCapture
-from .calibration.hand_eye import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
-from .poses import PoseError
-from .ros_interface import described, matrix_from_pose_msg, stamp_s
+from ..calibration.capture import CaptureSettings, StillPoseCapture
+from ..calibration.hand_eye import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
+from ..poses import PoseError
+from .interface import described, matrix_from_pose_msg, stamp_s
 
 ENCODINGS = {"mono8": (np.uint8, 1), "8UC1": (np.uint8, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3),
              "bgra8": (np.uint8, 4), "rgba8": (np.uint8, 4), "mono16": (np.uint16, 1), "16UC1": (np.uint16, 1)}

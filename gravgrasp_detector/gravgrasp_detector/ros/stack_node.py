@@ -33,9 +33,9 @@ from rclpy.node import Node
 from .cell_config import CellConfigError, check_consistency, load_sections, params_files, plan, unknown_parameters
 from .detect_node import DetectNode
 from .execute_node import ExecuteNode
-from .perception.model_file import ModelFileError
-from .ros_interface import described, spin
-from .perception.tsdf import InputError
+from ..perception.model_file import ModelFileError
+from .interface import described, spin
+from ..perception.tsdf import InputError
 from .tsdf_node import TSDFNode
 from .ur_arm_node import URArmNode
 

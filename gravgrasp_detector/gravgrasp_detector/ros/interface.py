@@ -13,7 +13,7 @@ from __future__ import annotations
 from geometry_msgs.msg import Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from .poses import matrix_from_pose, pose_from_matrix
+from ..poses import matrix_from_pose, pose_from_matrix
 
 # -- poses ---------------------------------------------------------------------------
 

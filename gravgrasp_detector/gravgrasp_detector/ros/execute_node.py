@@ -27,10 +27,10 @@ from gravgrasp_msgs.msg import GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
-from .execution.reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
-from .execution.executor import (Abort, ArmMotion, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome,
+from ..execution.reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
+from ..execution.executor import (Abort, ArmMotion, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome,
                               ResultCode, pose_to_matrix)
-from .ros_interface import described, pose_msg_from_matrix, run_node
+from .interface import described, pose_msg_from_matrix, run_node
 from .tsdf_node import VOLUME_QOS
 
 

@@ -36,7 +36,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from .execution.ur_arm_settings import xyz_yaw_to_matrix  # X_base_task from workspace_origin_in_base
+from ..execution.ur_arm_settings import xyz_yaw_to_matrix  # X_base_task from workspace_origin_in_base
 
 G_MPS2 = 9.81
 ARM_ADAPTERS = ("service", "ur")

@@ -36,10 +36,10 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
-from .poses import PoseError
-from .problem_log import ProblemLog
-from .ros_interface import described, float_range, int_range, matrix_from_pose_msg, run_node, stamp_s
-from .perception.tsdf import CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, to_network_grid
+from ..poses import PoseError
+from ..problem_log import ProblemLog
+from .interface import described, float_range, int_range, matrix_from_pose_msg, run_node, stamp_s
+from ..perception.tsdf import CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, to_network_grid
 
 DEPTH_ENCODINGS = {"16UC1": np.uint16, "32FC1": np.float32}
 
