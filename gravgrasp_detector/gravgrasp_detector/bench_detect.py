@@ -25,8 +25,8 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from .perception import detection, model_file, networks
-from .perception.tsdf import CameraIntrinsics, TSDFVolume, depth_from_millimetres
-from .ros.tsdf_node import camera_pose_from_msg, depth_from_image_msg
+from .perception.tsdf import CameraIntrinsics, TSDFVolume, depth_from_image_msg, depth_from_millimetres
+from .poses import matrix_from_pose
 
 ROOT = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", os.getcwd()))
 
@@ -41,7 +41,8 @@ def read_frames(bag):
             if connection.msgtype == "sensor_msgs/msg/CameraInfo":
                 info = CameraIntrinsics.from_k(msg.k, msg.width, msg.height)
             elif connection.msgtype == "geometry_msgs/msg/PoseStamped":
-                pose = camera_pose_from_msg(msg.pose)
+                p, q = msg.pose.position, msg.pose.orientation
+                pose = matrix_from_pose((p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
             elif connection.msgtype == "sensor_msgs/msg/Image":
                 depth = depth_from_image_msg(msg)
                 if depth.dtype == np.uint16:

@@ -78,6 +78,9 @@ class CameraIntrinsics:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
 
+DEPTH_ENCODINGS = {"16UC1": np.uint16, "32FC1": np.float32}
+
+
 def depth_from_millimetres(depth_mm):
     """uint16 depth in millimetres (REP-118 16UC1) -> float32 metres, 0 stays 0."""
     depth_mm = np.asarray(depth_mm)
@@ -86,6 +89,30 @@ def depth_from_millimetres(depth_mm):
             "encoding", f"millimetre depth must be uint16, got {depth_mm.dtype}"
         )
     return depth_mm.astype(np.float32) * np.float32(0.001)
+
+
+def depth_from_image_msg(msg):
+    """sensor_msgs/Image (or any message with its fields: rosbags reads them too) -> HxW uint16 (mm)
+    or float32 (m) array. Raises InputError. No ROS import: the node and the benchmark share it."""
+    dtype = DEPTH_ENCODINGS.get(msg.encoding)
+    if dtype is None:
+        raise InputError(
+            "encoding",
+            f"depth image encoding is {msg.encoding!r}: publish 16UC1 (millimetres) or "
+            "32FC1 (metres) per REP-118, e.g. remap depth/image to the camera's depth "
+            "(not colour or disparity) topic",
+        )
+    itemsize = np.dtype(dtype).itemsize
+    if msg.step < msg.width * itemsize or len(msg.data) < msg.step * msg.height or msg.width * msg.height == 0:
+        raise InputError(
+            "malformed_image",
+            f"depth image {msg.width}x{msg.height} {msg.encoding} with step {msg.step} carries "
+            f"{len(msg.data)} bytes (need step >= {msg.width * itemsize} and step x height "
+            "bytes): the publisher fills the message wrongly",
+        )
+    rows = np.frombuffer(bytes(msg.data), np.uint8, msg.step * msg.height).reshape(msg.height, msg.step)
+    depth = rows[:, : msg.width * itemsize].copy().view(np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<"))
+    return depth.astype(dtype, copy=False)
 
 
 def check_camera_pose(T_task_camera, size_m, max_distance_m=3.0):

@@ -27,7 +27,6 @@ import collections
 import sys
 import time
 
-import numpy as np
 from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
@@ -39,38 +38,14 @@ from std_srvs.srv import SetBool, Trigger
 from ..poses import PoseError
 from ..problem_log import ProblemLog
 from .interface import described, float_range, int_range, matrix_from_pose_msg, run_node, stamp_s
-from ..perception.tsdf import CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, to_network_grid
-
-DEPTH_ENCODINGS = {"16UC1": np.uint16, "32FC1": np.float32}
+from ..perception.tsdf import (CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, depth_from_image_msg,
+                               to_network_grid)
 
 VOLUME_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Sensor-data QoS with a queue of 1: a frame that waited while the node fused another is
 # stale when a newer one exists (with the usual 5, a busy node fused frames ~130 ms old).
 DEPTH_QOS = QoSProfile(depth=1, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability)
-
-
-def depth_from_image_msg(msg):
-    """sensor_msgs/Image -> HxW uint16 (mm) or float32 (m) array. Raises InputError."""
-    dtype = DEPTH_ENCODINGS.get(msg.encoding)
-    if dtype is None:
-        raise InputError(
-            "encoding",
-            f"depth image encoding is {msg.encoding!r}: publish 16UC1 (millimetres) or "
-            "32FC1 (metres) per REP-118, e.g. remap depth/image to the camera's depth "
-            "(not colour or disparity) topic",
-        )
-    itemsize = np.dtype(dtype).itemsize
-    if msg.step < msg.width * itemsize or len(msg.data) < msg.step * msg.height or msg.width * msg.height == 0:
-        raise InputError(
-            "malformed_image",
-            f"depth image {msg.width}x{msg.height} {msg.encoding} with step {msg.step} carries "
-            f"{len(msg.data)} bytes (need step >= {msg.width * itemsize} and step x height "
-            "bytes): the publisher fills the message wrongly",
-        )
-    rows = np.frombuffer(bytes(msg.data), np.uint8, msg.step * msg.height).reshape(msg.height, msg.step)
-    depth = rows[:, : msg.width * itemsize].copy().view(np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<"))
-    return depth.astype(dtype, copy=False)
 
 
 def camera_pose_from_msg(pose):
