@@ -50,7 +50,7 @@ train() {  # train VARIANT [OPTION]: into out/training_v5/VARIANT (resumes per e
 calibrate() {  # calibrate MODEL SCENES NAME: validation calibration (kept once done)
   [ -f "out/calibration/$3/calibration.json" ] && return
   echo "[chain] $(date -u +%FT%TZ) calibration $3"
-  python -m gravgrasp_detector.score_calibration --model "$1" --data "$2" --split val --out "out/calibration/$3"
+  python -m gravgrasp_detector.tools.score_calibration --model "$1" --data "$2" --split val --out "out/calibration/$3"
 }
 train ours
 calibrate out/training_v5/ours/model.pt out/scenes_v5 gravgrasp_v5_on_v5_val_scenes

@@ -1,4 +1,4 @@
-"""Model cards (gravgrasp_detector/model_card.py) from a tiny real training run.
+"""Model cards (gravgrasp_detector/tools/model_card.py) from a tiny real training run.
 
 Six synthetic scenes (tests/support/box_scenes.make_scene: a fused TSDF of a box with top-down
 labels) laid out as `datagen scenes` does (DATA/scenes/*.npz + manifest.json naming the
@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 
-from gravgrasp_detector import model_card
+from gravgrasp_detector.tools import model_card
 from gravgrasp_detector.training import loop as training_loop
 from gravgrasp_detector.perception import model_file
 from gravgrasp_detector.training.config import TrainConfig

@@ -5,7 +5,7 @@ import json
 import pytest
 import torch
 
-from gravgrasp_detector import score_calibration
+from gravgrasp_detector.tools import score_calibration
 from gravgrasp_detector.training import scenes as training_scenes
 from gravgrasp_detector.perception import model_file, networks, tsdf
 

@@ -29,8 +29,8 @@ import subprocess
 import sys
 import tempfile
 
-from . import atomic_files
-from .perception import model_file
+from .. import atomic_files
+from ..perception import model_file
 
 HUMAN_START, HUMAN_END = "<!-- human-notes: start -->", "<!-- human-notes: end -->"
 HUMAN_PLACEHOLDER = (

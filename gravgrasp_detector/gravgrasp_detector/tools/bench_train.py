@@ -20,9 +20,9 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from .perception import networks
-from .training.config import TrainConfig
-from .training.losses import losses, training_outputs
+from ..perception import networks
+from ..training.config import TrainConfig
+from ..training.losses import losses, training_outputs
 
 
 def synthetic_batch(batch_size, rng, labels=150, negatives=250, resolution=40):

@@ -24,9 +24,9 @@ import torch
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from .perception import detection, model_file, networks
-from .perception.tsdf import CameraIntrinsics, TSDFVolume, depth_from_image_msg, depth_from_millimetres
-from .poses import matrix_from_pose
+from ..perception import detection, model_file, networks
+from ..perception.tsdf import CameraIntrinsics, TSDFVolume, depth_from_image_msg, depth_from_millimetres
+from ..poses import matrix_from_pose
 
 ROOT = pathlib.Path(os.environ.get("GRAVGRASP_ROOT", os.getcwd()))
 
