@@ -1,0 +1,112 @@
+"""The documentation's links lead somewhere, and the READMEs stay short.
+
+Every relative link in every Markdown file of the repository (`[text](path)`,
+`[text](path#anchor)`, images too) must name a file or directory that exists, and an
+anchor into a Markdown file must name one of its headings: a moved or renamed file or
+section otherwise leaves a dead link that nobody notices. Links to web pages and bare
+`#anchor` links into the same file are not checked. The README and each package's
+README are for a newcomer and stay within 300 lines; longer material lives in
+`<package>/doc/`.
+"""
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+MAX_README_LINES = 300
+READMES = ["README.md", "gravgrasp_detector/README.md", "sim_bridge/README.md",
+           "robotiq_driver/README.md", "gravgrasp_msgs/README.md"]
+
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+FENCE = re.compile(r"^(```|~~~)")
+CODE_SPAN = re.compile(r"`[^`]*`")
+HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
+
+
+def markdown_files() -> list:
+    """Tracked Markdown files, and new ones git does not ignore (out/ is ignored)."""
+    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "*.md"],
+                         cwd=ROOT, check=True, capture_output=True, text=True).stdout.split("\n")
+    return sorted(p for p in set(out) if p and not p.startswith("out/") and (ROOT / p).is_file())
+
+
+def prose_lines(text: str):
+    """(line number, line) outside fenced code blocks, with inline code spans removed."""
+    fenced = False
+    for n, line in enumerate(text.split("\n"), 1):
+        if FENCE.match(line.lstrip()):
+            fenced = not fenced
+            continue
+        if not fenced:
+            yield n, CODE_SPAN.sub("", line)
+
+
+def github_anchor(heading: str) -> str:
+    """The anchor GitHub gives a heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading)  # a link in a heading: its text
+    text = re.sub(r"[^\w\- ]", "", text.replace("`", "").lower())
+    return text.replace(" ", "-")
+
+
+def anchors(path: Path) -> set:
+    seen, out = {}, set()
+    fenced = False
+    for line in path.read_text().split("\n"):
+        if FENCE.match(line.lstrip()):
+            fenced = not fenced
+            continue
+        m = None if fenced else HEADING.match(line)
+        if m:
+            a = github_anchor(m.group(2))
+            out.add(a if a not in seen else f"{a}-{seen[a]}")
+            seen[a] = seen.get(a, 0) + 1
+    return out
+
+
+def broken_links(md: str) -> list:
+    path = ROOT / md
+    problems = []
+    for n, line in prose_lines(path.read_text()):
+        for target in LINK.findall(line):
+            if re.match(r"^[a-z][a-z0-9+.-]*:", target, re.I) or target.startswith("#"):
+                continue  # a web page, mailto:, or an anchor in this file
+            rel, _, anchor = target.partition("#")
+            dest = (path.parent / rel).resolve()
+            if not dest.exists():
+                problems.append(f"{md}:{n}: {target} (no such file or directory)")
+            elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
+                problems.append(f"{md}:{n}: {target} (no heading '#{anchor}' in {rel})")
+    return problems
+
+
+def test_github_anchor_follows_github_rules():
+    assert github_anchor("Soak: does it hold up for hours? (`make soak`)") == \
+        "soak-does-it-hold-up-for-hours-make-soak"
+    assert github_anchor("`ros2 run gravgrasp_detector ur_arm` — a UR arm") == \
+        "ros2-run-gravgrasp_detector-ur_arm--a-ur-arm"
+
+
+def test_the_checker_finds_a_dead_link(tmp_path, monkeypatch):
+    (tmp_path / "doc").mkdir()
+    (tmp_path / "doc" / "a.md").write_text("# A\n\n## Part two\n")
+    (tmp_path / "b.md").write_text("[ok](doc/a.md#part-two) [dir](doc/) [web](https://x.org/y)\n"
+                                   "`[code](nowhere.md)`\n[gone](doc/missing.md) [bad](doc/a.md#part-three)\n")
+    monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
+    assert broken_links("b.md") == ["b.md:3: doc/missing.md (no such file or directory)",
+                                    "b.md:3: doc/a.md#part-three (no heading '#part-three' in doc/a.md)"]
+
+
+def test_every_relative_link_in_every_markdown_file_resolves():
+    files = markdown_files()
+    assert "README.md" in files and len(files) > 10
+    problems = [p for md in files for p in broken_links(md)]
+    assert not problems, f"{len(problems)} dead links:\n" + "\n".join(problems)
+
+
+@pytest.mark.parametrize("readme", READMES)
+def test_readmes_stay_short(readme):
+    n = len((ROOT / readme).read_text().split("\n"))
+    assert n <= MAX_README_LINES, f"{readme} has {n} lines (at most {MAX_README_LINES}): move detail to <package>/doc/"
