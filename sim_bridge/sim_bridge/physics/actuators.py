@@ -48,25 +48,29 @@ def driver_torque_nm(grip_force_n: float) -> float:
 
 
 class FingerServoSystem(LeafSystem):
-    """The 2F-85's motor on both driver joints (the coupler constraint ties them).
+    """The 2F-85's motor on both driver joints (the coupler constraint ties them); the
+    Panda's on its two finger joints likewise (world.finger_drives has its gain).
 
     Discrete state: the reference angle, which moves towards the target angle at the
     commanded rate every time step. Numeric parameters: [target angle rad, rate
     rad/s, torque limit N m]. Output: tau = clip(kp (ref - q), ±limit): the full
     torque (the grip force) is reached 2 mm short of the reference at 40 N. The damping
-    is the driver joints' own (`DRIVER_DAMPING_NMS_PER_RAD`, set in
+    is the driver joints' own (world.finger_drives' `joint_damping`, set in
     build_world_diagram): SAP treats joint damping implicitly, whereas a damping term
     here is explicit and made the light linkage chatter at ±14 rad/s every step.
     """
 
     KP_NM_PER_RAD = 100.0  # 200 overshoots, 400 chatters (dt 2 ms)
 
-    def __init__(self, plant, hand, time_step_s):
+    def __init__(self, plant, hand, time_step_s, kp=KP_NM_PER_RAD, initial_reference=0.0):
+        """`kp`, `initial_reference`: the 2F-85's by default; the Panda's fingers are
+        prismatic (N/m, m; world.finger_drives)."""
         super().__init__()
         self._iq = hand.driver_joints[0].position_start()
         self._dt = time_step_s
+        self._kp = float(kp)
         self._state = self.DeclareVectorInputPort("state", plant.num_multibody_states())
-        self._ref = self.DeclareDiscreteState(1)
+        self._ref = self.DeclareDiscreteState([float(initial_reference)])
         self._params = self.DeclareNumericParameter(BasicVector([0.0, 1.0, 1.0]))
         # Callbacks through a weak reference: a bound method held by the C++ side would
         # keep this object (and the C++ system it owns once its diagram is gone) alive.
@@ -98,6 +102,6 @@ class FingerServoSystem(LeafSystem):
         x = self._state.Eval(context)
         ref = context.get_discrete_state(self._ref).GetAtIndex(0)
         limit = context.get_numeric_parameter(self._params).GetAtIndex(2)
-        tau = self.KP_NM_PER_RAD * (ref - x[self._iq])
+        tau = self._kp * (ref - x[self._iq])
         tau = float(np.clip(tau, -limit, limit))
         output.SetFromVector([tau, tau])

@@ -7,7 +7,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..physics import panda_hand
+from ..physics.baseline_files import baseline_file
 from ..physics.contact import SimSettings
+from ..physics.hands import hand_spec
 from ..physics.scenes import ARRANGEMENTS, TABLE_HEIGHT_M
 
 BARE_MESH_DENSITY_KG_M3 = 500.0  # mesh_dir of bare OBJs without object_mass_kg
@@ -73,9 +76,16 @@ class WorldSettings:
     # Freeze objects at rest away from the hand and filter their contacts
     # (resting_objects): a clutter round's steps cost what the hand's neighbourhood does.
     freeze_resting_objects: bool = False
+    # The hand (physics.hands): "2f85", the paper's, or "panda", the baselines' (its
+    # files from `baselines_dir`; "" = physics.baseline_files' default).
+    hand: str = "2f85"
+    baselines_dir: str = ""
 
     def validate(self):
         self.contact.validate()
+        hand_spec(self.hand)
+        if self.hand == "panda":
+            baseline_file(panda_hand.URDF, self.baselines_dir or None)
         lo, hi = np.asarray(self.workspace_min_m, float), np.asarray(self.workspace_max_m, float)
         if lo.shape != (3,) or hi.shape != (3,) or not np.all(lo < hi):
             raise ValueError("workspace_min_m must be below workspace_max_m on every axis (3 values each)")

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..physics import hand_model
 from ..physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 
 
@@ -78,18 +77,16 @@ def object_states(model, plant_context, names, removed, hull_vertices) -> list:
     plant, pc = model.plant, plant_context
     poses = {n: plant.EvalBodyPoseInWorld(pc, b).GetAsMatrix4() for n, b in zip(names, model.object_bodies)}
     touching = {}
-    left = {g for g, l in model.hand_link_of.items() if l.startswith("left_")}
-    right = {g for g, l in model.hand_link_of.items() if l.startswith("right_")}
     geom_owner = {}
     for n, b in zip(names, model.object_bodies):
         for g in plant.GetCollisionGeometriesForBody(b):
             geom_owner[g.get_value()] = n
-    inner = set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS)  # as grasp_simulation's modes
+    inner = set(model.hand_spec.inner_links)  # as grasp_simulation's modes
     wrapped = set()
     for h, other in _hand_contact_pairs(model, pc):
         n = geom_owner.get(other)
         if n is not None:
-            touching.setdefault(n, set()).add("left" if h in left else "right" if h in right else "palm")
+            touching.setdefault(n, set()).add(model.finger_side_of.get(h, "palm"))
             if model.hand_link_of.get(h) in inner:
                 wrapped.add(n)
     out = []
@@ -107,3 +104,15 @@ def object_states(model, plant_context, names, removed, hull_vertices) -> list:
         out.append(ObjectState(n, X, float(b.get_mass(pc)), height, in_hand,
                                in_hand and height >= 0.01, out_ws, mode))
     return out
+
+
+def finger_squeeze_n(model, plant_context, closing_axis) -> tuple:
+    """(left, right) [N]: how hard each finger presses on what it touches, along the
+    closing axis (unit vector, task frame): the grip force the fingers exert now."""
+    axis = np.asarray(closing_axis, float)
+    out = {"left": 0.0, "right": 0.0}
+    for h, _, force in hand_contacts(model, plant_context):
+        side = model.finger_side_of.get(h)
+        if side is not None:
+            out[side] += abs(float(force @ axis))
+    return out["left"], out["right"]

@@ -1,6 +1,7 @@
 """The cell as one Drake diagram: plant (gravity, SAP, the paper's contact parameters),
-scene graph, the table, a parking shelf for removed objects, the floating 2F-85 and its
-finger servo (physics.actuators.FingerServoSystem)."""
+scene graph, the table, a parking shelf for removed objects, the floating hand (the
+2F-85, or another of physics.hands: WorldSettings.hand) and its finger servo
+(physics.actuators.FingerServoSystem, driven as finger_drives says)."""
 
 from __future__ import annotations
 
@@ -11,16 +12,14 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
-from ..physics import hand_model
 from ..physics.actuators import FingerServoSystem
+from ..physics.hands import hand_spec
 from ..physics.contact import proximity_properties
 from ..physics.scenes import TABLE_FRICTION, TABLE_HEIGHT_M, VOLUME_SIZE_M
 from .config import WorldSettings
+from .finger_drives import DRIVES
 
 PARKING_SHELF_M = (5.0, 5.0, -5.0)  # top surface of the shelf removed objects go to (task frame)
-FINGER_LINKS = frozenset(hand_model.LEFT_LINKS + hand_model.RIGHT_LINKS
-                         + ("left_silicone_pad", "right_silicone_pad"))
-DRIVER_DAMPING_NMS_PER_RAD = 0.3  # the finger servo's damping (implicit in SAP)
 
 
 @dataclass
@@ -29,7 +28,7 @@ class WorldDiagram:
     plant: object
     scene_graph: object
     hand: object
-    mount_body: object  # the hand's floating body (base_mount)
+    mount_body: object  # the hand's floating body (the 2F-85's base_mount, the Panda's hand link)
     object_bodies: list
     finger_servo: object
     # Geometries by GeometryId *value* (int): pydrake hands out GeometryIds that can
@@ -39,6 +38,9 @@ class WorldDiagram:
     hand_geometries: frozenset  # collision geometry id values of the hand
     finger_geometries: frozenset
     hand_bodies: frozenset  # BodyIndex of every hand link
+    hand_spec: object  # physics.hands.HandSpec
+    drive: object  # finger_drives.FingerDrive
+    finger_side_of: dict  # finger collision geometry id value -> "left" or "right"
 
     def release(self) -> None:
         """Let the garbage collector free this diagram; call only when discarding it (no
@@ -81,14 +83,14 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
     # Where removed objects are parked: a shelf far out of view (no visual geometry).
     X_shelf = RigidTransform([PARKING_SHELF_M[0] + 10.0, PARKING_SHELF_M[1], PARKING_SHELF_M[2] - 0.5])
     plant.RegisterCollisionGeometry(plant.world_body(), X_shelf, Box(21.0, 2.0, 1.0), "parking_shelf", table_props)
-    hand = hand_model.add_hand(plant, scene_graph, props, floating=True,
-                               pad_contact_points=s.contact_model == "point")
+    spec, drive = hand_spec(settings.hand), DRIVES[settings.hand]
+    hand = spec.add(plant, scene_graph, props, True, s.contact_model == "point", settings.baselines_dir or None)
     bodies = [spec.add_to_plant(plant, name=name, proximity_properties=props) for name, spec in objects]
     plant.set_gravity_enabled(hand.model_instance, False)  # the arm carries the hand
     for j in hand.driver_joints:
-        j.set_default_damping(DRIVER_DAMPING_NMS_PER_RAD)
+        j.set_default_damping(drive.joint_damping)
     plant.Finalize()
-    servo = builder.AddSystem(FingerServoSystem(plant, hand, s.time_step_s))
+    servo = builder.AddSystem(FingerServoSystem(plant, hand, s.time_step_s, drive.kp, drive.open_joint))
     builder.Connect(plant.get_state_output_port(), servo.get_input_port())
     builder.Connect(servo.get_output_port(), plant.get_actuation_input_port())
     diagram = builder.Build()
@@ -97,7 +99,8 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
         body = plant.get_body(bi)
         for g in plant.GetCollisionGeometriesForBody(body):
             link_of[g.get_value()] = body.name()
-    finger = frozenset(g for g, link in link_of.items() if link in FINGER_LINKS)
-    return WorldDiagram(diagram, plant, scene_graph, hand, plant.GetBodyByName("base_mount", hand.model_instance),
-                        bodies, servo, link_of, frozenset(link_of), finger,
-                        frozenset(plant.GetBodyIndices(hand.model_instance)))
+    side = {g: "left" if link in spec.left_links else "right" for g, link in link_of.items()
+            if link in spec.finger_links}
+    return WorldDiagram(diagram, plant, scene_graph, hand, plant.GetBodyByName(spec.mount_body, hand.model_instance),
+                        bodies, servo, link_of, frozenset(link_of), frozenset(side),
+                        frozenset(plant.GetBodyIndices(hand.model_instance)), spec, drive, side)

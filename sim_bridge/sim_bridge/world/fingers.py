@@ -1,13 +1,15 @@
-"""The 2F-85's fingers in a SimWorld: commands to its motor and what the gripper reports.
+"""A hand's fingers in a SimWorld: commands to its motor and what the gripper reports.
 
 The motor is `physics.actuators.FingerServoSystem` (a LeafSystem): a position servo on
-the driver joint whose reference moves at the commanded speed and whose torque is
-clipped at the value that squeezes the commanded force (grasp_simulation's
-calibration). Blocked by an object, the reference runs on to the target and the torque
-saturates: a force-limited grip, as the real gripper does. Width is reported from the
+the driver joint (the 2F-85's driver, the Panda's finger joints) whose reference moves
+at the commanded speed and whose effort is clipped at the value that squeezes the
+commanded force. Blocked by an object, the reference runs on to the target and the
+effort saturates: a force-limited grip, as the real grippers do. How joint and opening
+relate is the hand's `finger_drives.FingerDrive`: the 2F-85 reports its width from the
 driver angle through the free-closing calibration (`DRIVER_ANGLE_RAD` -> `PAD_GAP_M`),
-as the real gripper reports its motor position, not the pad gap. Whether the fingers
-move, reached the target or stopped on something comes from a stall detection.
+as the real gripper reports its motor position, not the pad gap; the Panda its finger
+positions. Whether the fingers move, reached the target or stopped on something comes
+from a stall detection.
 
 No locking here: SimWorld calls it under its lock."""
 
@@ -15,8 +17,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..physics.actuators import FingerServoSystem, driver_torque_nm
-from .finger_calibration import GAP_PER_DRIVER_RAD_M, driver_angle_for_width, width_from_driver_angle
 
 
 @dataclass
@@ -29,20 +29,20 @@ class FingerCommand:
 
 
 class Fingers:
-    """The finger servo of one world diagram (`diagram.WorldDiagram`) run by `simulator`;
-    a new world gets new Fingers. Until the first command the servo holds them open at
-    `grip_force_n`'s torque."""
+    """The finger servo of one world diagram (`diagram.WorldDiagram`, driven as its
+    `drive` says) run by `simulator`; a new world gets new Fingers. Until the first
+    command the servo holds them open at `grip_force_n`'s effort."""
 
-    STALL_RATE_RAD_S = 0.05
     STALL_HOLD_S = 0.04  # stalled this long = stopped
     START_GRACE_S = 0.06  # after a new command, before a stop can be declared
-    BLOCK_RELEASE_RAD = 0.02  # ~2 mm of opening: fingers moving on from an object
 
     def __init__(self, model, simulator, grip_force_n: float):
         self._model, self._simulator = model, simulator
+        self._drive = model.drive
         self._command = None
         self._stall_since_s = self._blocked_angle = None
-        model.finger_servo.set_command(self._servo_context(), 0.0, 1.0, driver_torque_nm(grip_force_n))
+        model.finger_servo.set_command(self._servo_context(), self._drive.open_joint, 1.0,
+                                       self._drive.effort_for_force(grip_force_n))
 
     def _time_s(self) -> float:
         return self._simulator.get_context().get_time()
@@ -63,9 +63,10 @@ class Fingers:
             ctx = self._servo_context()
             if cmd is None:  # first command: start the reference where the fingers are
                 self._model.finger_servo.set_reference(ctx, self.driver_angle_rad())
+            d = self._drive
             self._model.finger_servo.set_command(
-                ctx, driver_angle_for_width(target_width_m),
-                max(speed_mps, 1e-3) / GAP_PER_DRIVER_RAD_M, driver_torque_nm(force_n))
+                ctx, d.joint_for_width(target_width_m), max(speed_mps, 1e-3) / d.width_per_joint_m,
+                d.effort_for_force(force_n))
 
     def commanded(self) -> bool:
         """True while a command runs (not stopped by `hold`)."""
@@ -80,14 +81,16 @@ class Fingers:
         _, rate, torque = self._model.finger_servo.command(ctx)
         self._model.finger_servo.set_reference(ctx, angle)
         self._model.finger_servo.set_command(ctx, angle, rate, torque)
-        self._command = FingerCommand(width_from_driver_angle(angle), self._command.speed_mps,
+        self._command = FingerCommand(self._drive.width_at(angle), self._command.speed_mps,
                                       self._command.force_n, self._time_s(), held=True)
 
     def driver_angle_rad(self) -> float:
-        return self._model.hand.driver_angle_rad(self._model.plant, self._plant_context())
+        """The servo's joint: the 2F-85's driver angle [rad], a Panda finger's position [m]."""
+        iq = self._model.hand.driver_joints[0].position_start()
+        return float(self._model.plant.GetPositions(self._plant_context())[iq])
 
     def width_m(self) -> float:
-        return width_from_driver_angle(self.driver_angle_rad())
+        return self._drive.width_at(self.driver_angle_rad())
 
     def _driver_rate(self):
         iv = self._model.hand.driver_joints[0].velocity_start()
@@ -97,7 +100,7 @@ class Fingers:
         """After every time step: when the driver stalled."""
         if self._command is None:
             return
-        if abs(self._driver_rate()) < self.STALL_RATE_RAD_S:
+        if abs(self._driver_rate()) < self._drive.stall_rate:
             if self._stall_since_s is None:
                 self._stall_since_s = self._time_s()
         else:
@@ -110,12 +113,12 @@ class Fingers:
         width = self.width_m()
         if cmd is None:
             return width, "at_target"
-        target_angle = driver_angle_for_width(cmd.target_width_m)
+        target_angle = self._drive.joint_for_width(cmd.target_width_m)
         if self._blocked_angle is not None:
             # Once stopped on an object, stay so while the fingers keep still: a lift
             # that flexes the fingers for a moment is no dropped object. Only moving
             # on towards the target (the object slipped out) ends it, as on the 2F-85.
-            if abs(self.driver_angle_rad() - self._blocked_angle) < self.BLOCK_RELEASE_RAD:
+            if abs(self.driver_angle_rad() - self._blocked_angle) < self._drive.block_release:
                 return width, "blocked"
             self._blocked_angle = None
             self._stall_since_s = None
@@ -129,7 +132,7 @@ class Fingers:
         stopped = (self._stall_since_s is not None and t - self._stall_since_s >= self.STALL_HOLD_S
                    and t - cmd.t_start_s >= self.START_GRACE_S
                    and (self._pushing(target_angle) or self._reference_done()))
-        close_enough = abs(self.driver_angle_rad() - target_angle) < 0.01
+        close_enough = self._drive.reached(self.driver_angle_rad(), cmd.target_width_m)
         if close_enough and (stopped or t - cmd.t_start_s >= self.START_GRACE_S):
             return cmd.target_width_m, "at_target"
         if stopped:
@@ -148,7 +151,7 @@ class Fingers:
         ctx = self._servo_context()
         _, _, limit = self._model.finger_servo.command(ctx)
         q = self.driver_angle_rad()
-        tau = FingerServoSystem.KP_NM_PER_RAD * (self._model.finger_servo.reference(ctx) - q)
+        tau = self._drive.kp * (self._model.finger_servo.reference(ctx) - q)
         return tau * (target_angle - q) > 0 and abs(tau) >= 0.9 * limit
 
     def _reference_done(self) -> bool:

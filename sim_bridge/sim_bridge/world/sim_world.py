@@ -50,10 +50,11 @@ from pydrake.systems.analysis import Simulator
 
 from .camera import SceneMeshes, camera_intrinsics, camera_pose, render_depth
 from .config import R_TOP_DOWN, SceneConfig, WorldSettings, pose
-from .contacts import hand_contacts, object_states
+from .contacts import finger_squeeze_n, hand_contacts, object_states
 from .diagram import PARKING_SHELF_M, build_world_diagram
 from .fingers import Fingers
 from .motion import Motion, check_reachable
+from .parallel_grip import GripVerdict, judge_parallel_grip
 from .resting_objects import RestingObjects
 from .scene_objects import draw_scene
 
@@ -348,6 +349,18 @@ class SimWorld:
         """True while the fingers move or the servo is still building up its grip."""
         with self.lock:
             return self._fingers.busy()
+
+    def grip_force_n(self) -> tuple:
+        """(left, right) [N]: how hard each finger presses on what it touches, along the
+        TCP's closing axis (ground truth: the grip force)."""
+        with self.lock:
+            return finger_squeeze_n(self._model, self._plant_context(), self.tcp_pose()[:3, 1])
+
+    def parallel_grip(self) -> GripVerdict:
+        """Held or not, for a parallel-jaw hand (the Panda): from the finger positions and
+        the ground truth (`parallel_grip`)."""
+        with self.lock:
+            return judge_parallel_grip(self._fingers.width_m(), self.object_states())
 
     # -- objects ------------------------------------------------------------------
 
