@@ -1,6 +1,6 @@
 """Rigid poses: 4x4 homogeneous matrices <-> (position m, unit quaternion x, y, z, w).
 
-The one place the project converts between the two; `ros_interface` adds the
+The one place the project converts between the two; `ros.interface` adds the
 geometry_msgs side. Bad input raises `PoseError` with what is wrong; each caller wraps it
 in its own error type (a node input problem, a rejected request). No ROS.
 """

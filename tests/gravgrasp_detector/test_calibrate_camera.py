@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 
 from board_views import HEIGHT, K, WIDTH, BoardRenderer, pose_difference, transform
-from gravgrasp_detector.ros.bag_replay import write_bag
 from gravgrasp_detector.calibration.capture import StillPoseCapture
+from gravgrasp_detector.ros.bag_replay import write_bag
 from gravgrasp_detector.ros.cell_config import camera_in_task, load_sections, plan
 from gravgrasp_detector.ros.cell_file import remove_parameters, set_parameters
 from ros_testing import executable

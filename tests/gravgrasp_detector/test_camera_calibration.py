@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from board_views import DIST, HEIGHT, K, WIDTH, BoardRenderer, look_at, pose_difference, transform
 from gravgrasp_detector.calibration.hand_eye import (CalibrationError, CharucoTarget, calibrate, detect_board,
-                                                   solve_hand_eye)
+                                                     solve_hand_eye)
 
 TARGET = CharucoTarget(squares_x=7, squares_y=5, square_m=0.030, marker_m=0.022, dictionary="DICT_5X5_100")
 TOLERANCE_MM, TOLERANCE_DEG = 2.0, 0.5

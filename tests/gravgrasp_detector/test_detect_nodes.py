@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from gravgrasp_detector.perception import model_file, networks
-from gravgrasp_detector.ros.bag_replay import BagPlayer, read_bag
 from gravgrasp_detector.perception.tsdf import TSDFVolume
+from gravgrasp_detector.ros.bag_replay import BagPlayer, read_bag
 from gravgrasp_detector.ros.tsdf_node import VOLUME_QOS
 
 import ros_testing

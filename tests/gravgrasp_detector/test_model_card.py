@@ -10,9 +10,9 @@ import shutil
 import numpy as np
 import pytest
 
+from gravgrasp_detector.perception import model_file
 from gravgrasp_detector.tools import model_card
 from gravgrasp_detector.training import loop as training_loop
-from gravgrasp_detector.perception import model_file
 from gravgrasp_detector.training.config import TrainConfig
 from box_scenes import make_scene
 

@@ -5,9 +5,9 @@ import json
 import pytest
 import torch
 
+from gravgrasp_detector.perception import model_file, networks, tsdf
 from gravgrasp_detector.tools import score_calibration
 from gravgrasp_detector.training import scenes as training_scenes
-from gravgrasp_detector.perception import model_file, networks, tsdf
 
 from box_scenes import write_scenes
 

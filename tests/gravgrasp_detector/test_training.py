@@ -9,9 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from gravgrasp_detector.tools import bench_train
-from gravgrasp_detector.training import cli as training, loop as training_loop, losses as training_losses, scenes as training_scenes
 from gravgrasp_detector.perception import model_file, networks, rotation
+from gravgrasp_detector.tools import bench_train
+from gravgrasp_detector.training import cli as training
+from gravgrasp_detector.training import loop as training_loop
+from gravgrasp_detector.training import losses as training_losses
+from gravgrasp_detector.training import scenes as training_scenes
 from gravgrasp_detector.training.config import TrainConfig
 
 from box_scenes import write_scenes

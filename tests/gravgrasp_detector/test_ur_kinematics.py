@@ -1,5 +1,5 @@
 """The nominal UR5e kinematics ur_arm judges the pendant's TCP with are the project's arm
-model's (arm_reachability, Drake + MuJoCo Menagerie's UR5e), in the controller's frames."""
+model's (execution.reachability, Drake + MuJoCo Menagerie's UR5e), in the controller's frames."""
 import numpy as np
 import pytest
 

@@ -22,8 +22,8 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlu
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 
-from gravgrasp_detector.ros.bag_replay import msgtype_name, typestore_for
 from gravgrasp_detector.perception.tsdf import CameraIntrinsics
+from gravgrasp_detector.ros.bag_replay import msgtype_name, typestore_for
 from sim_bridge.physics.depth_rendering import DepthRenderer, look_at
 
 OUT = pathlib.Path(__file__).resolve().parents[1] / "data" / "tabletop_bag"

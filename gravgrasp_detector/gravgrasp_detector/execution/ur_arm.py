@@ -87,9 +87,9 @@ from typing import Callable
 import numpy as np
 
 from .ur_arm_settings import URArmSettings
-from .ur_kinematics import flange_in_base as nominal_flange_in_base
 from .ur_controller import (ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread, matrix_to_ur_pose,
                             pose_error, safety_action, state_refusal, ur_pose_to_matrix)
+from .ur_kinematics import flange_in_base as nominal_flange_in_base
 
 
 class URArmError(Exception):

@@ -4,7 +4,7 @@ no rclpy), so ur_arm can ask it at the state rate.
 The table is Universal Robots' published one ("DH parameters for calculations of
 kinematics and dynamics"); its frames are the controller's: frame 0 is the robot base as
 the pendant shows it (feature Base), frame 6 the tool flange (the TCP with a zero offset).
-arm_reachability's Drake model (MuJoCo Menagerie's UR5e) gives the same flange pose to
+reachability's Drake model (MuJoCo Menagerie's UR5e) gives the same flange pose to
 ~1 mm (tests/gravgrasp_detector/test_ur_kinematics.py).
 
 Nominal: every UR is calibrated in the factory and its controller uses that calibration

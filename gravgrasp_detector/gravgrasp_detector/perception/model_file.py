@@ -96,7 +96,7 @@ def save_model(path, model, tsdf_volume_or_metadata, training_data=None):
 
 
 def training_target(metadata: dict) -> str:
-    """'gravity-score' or 'binary' (training_loop.py records it in training_data.target)."""
+    """'gravity-score' or 'binary' (training/loop.py records it in training_data.target)."""
     return str((metadata.get("training_data") or {}).get("target", "gravity-score"))
 
 

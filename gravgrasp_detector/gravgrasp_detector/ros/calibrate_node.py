@@ -14,8 +14,8 @@ Inputs: `image_topic` (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8, mono1
 `camera_info_topic` (its CameraInfo: K and plumb_bob D), `pose_topic`
 (geometry_msgs/PoseStamped, the flange in the robot base frame: ur_arm's
 `flange_pose_base`). Images are paired with the flange pose by header stamp, only while
-the arm rests (calibration_capture.py). After `views` views (or `~/solve`,
-std_srvs/Trigger, live) it solves (camera_calibration.py), prints the result and
+the arm rests (calibration/capture.py). After `views` views (or `~/solve`,
+std_srvs/Trigger, live) it solves (calibration/hand_eye.py), prints the result and
 residuals, and writes into `cell_file` the result with its record (`ur_arm.calibration_date`,
 `_mode`, `_views`, `_residual_mm`, `_residual_deg`, `_reprojection_px`):
 eye_to_hand -> `ur_arm.camera_in_base`, the camera in the robot base frame, which the
@@ -44,12 +44,12 @@ from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from . import cell_file
-from .bag_replay import read_bag
-from .cell_config import CellConfigError, convert_camera_pose, load_sections
 from ..calibration.capture import CaptureSettings, StillPoseCapture
 from ..calibration.hand_eye import MODES, CalibrationError, CharucoTarget, HandEyeResult, detect_board, solve_hand_eye
 from ..poses import PoseError
+from . import cell_file
+from .bag_replay import read_bag
+from .cell_config import CellConfigError, convert_camera_pose, load_sections
 from .interface import described, matrix_from_pose_msg, stamp_s
 
 ENCODINGS = {"mono8": (np.uint8, 1), "8UC1": (np.uint8, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3),

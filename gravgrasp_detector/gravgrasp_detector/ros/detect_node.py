@@ -28,12 +28,12 @@ from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from ..perception import detection, model_file
-from .markers import grasp_markers
 from ..perception.model_file import ModelFileError
+from ..perception.tsdf import TSDF_CONVENTION, InputError
 from ..poses import PoseError
 from ..problem_log import ProblemLog
 from .interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
-from ..perception.tsdf import TSDF_CONVENTION, InputError
+from .markers import grasp_markers
 from .tsdf_node import VOLUME_QOS
 
 DEFAULT_MODEL = "models/gravgrasp.pt"

@@ -1,6 +1,6 @@
 """`ros2 run gravgrasp_detector execute`: serves /execute_grasp.
 
-A thin adapter around grasp_execution.GraspExecutor: it keeps the latest /grasps and
+A thin adapter around execution.executor.GraspExecutor: it keeps the latest /grasps and
 TSDF volume, reaches the arm through the MoveToPose service (`move_to_pose`, served
 by the sim bridge or a real arm's adapter) and the Robotiq 2F-85 through its serial
 port (robotiq_driver, Modbus RTU).
@@ -27,15 +27,15 @@ from gravgrasp_msgs.msg import GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
-from ..execution.reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
 from ..execution.executor import (Abort, ArmMotion, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome,
-                              ResultCode, pose_to_matrix)
+                                  ResultCode, pose_to_matrix)
+from ..execution.reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
 from .interface import described, pose_msg_from_matrix, run_node
 from .tsdf_node import VOLUME_QOS
 
 
 class ServiceArm:
-    """grasp_execution.Arm over the MoveToPose service. A service that leaves the ROS
+    """execution.executor.Arm over the MoveToPose service. A service that leaves the ROS
     graph during a move (the adapter crashed or was stopped) raises ArmUnavailable once
     it has been gone for `gone_s`, instead of waiting out the whole motion timeout."""
 

@@ -30,12 +30,12 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
+from ..perception.model_file import ModelFileError
+from ..perception.tsdf import InputError
 from .cell_config import CellConfigError, check_consistency, load_sections, params_files, plan, unknown_parameters
 from .detect_node import DetectNode
 from .execute_node import ExecuteNode
-from ..perception.model_file import ModelFileError
 from .interface import described, spin
-from ..perception.tsdf import InputError
 from .tsdf_node import TSDFNode
 from .ur_arm_node import URArmNode
 

@@ -35,11 +35,11 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
+from ..perception.tsdf import (CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, depth_from_image_msg,
+                               to_network_grid)
 from ..poses import PoseError
 from ..problem_log import ProblemLog
 from .interface import described, float_range, int_range, matrix_from_pose_msg, run_node, stamp_s
-from ..perception.tsdf import (CameraIntrinsics, InputError, TSDFVolume, check_camera_pose, depth_from_image_msg,
-                               to_network_grid)
 
 VOLUME_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Sensor-data QoS with a queue of 1: a frame that waited while the node fused another is

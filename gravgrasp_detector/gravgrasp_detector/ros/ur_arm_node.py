@@ -43,10 +43,10 @@ from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from ..poses import PoseError, matrix_from_pose
-from .interface import described, float_range, matrix_from_pose_msg, pose_stamped_from_matrix, run_node
 from ..execution.ur_arm import ConnectionLost, TCPMismatch, URArm
 from ..execution.ur_arm_settings import FLANGE_TO_TCP_2F85_M, URArmSettings, xyz_yaw_to_matrix
+from ..poses import PoseError, matrix_from_pose
+from .interface import described, float_range, matrix_from_pose_msg, pose_stamped_from_matrix, run_node
 
 UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > System > Network), that the robot "
                     "is in Remote Control (e-Series), and that no other program holds its RTDE interface")

@@ -26,7 +26,7 @@ from ..training.losses import losses, training_outputs
 
 
 def synthetic_batch(batch_size, rng, labels=150, negatives=250, resolution=40):
-    """Examples as training_scenes.make_example returns them."""
+    """Examples as training.scenes.make_example returns them."""
     batch = []
     for _ in range(batch_size):
         flat = rng.choice(resolution ** 3, labels + negatives, replace=False)

@@ -32,10 +32,10 @@ import numpy as np
 import torch
 from scipy.stats import spearmanr
 
-from ..perception import model_file
 from ..atomic_files import save_figure, save_json
-from ..training.config import TrainConfig
+from ..perception import model_file
 from ..perception.detection import DetectionOptions, detect_grasps, near_surface_mask
+from ..training.config import TrainConfig
 from ..training.losses import auroc
 from ..training.scenes import G_MPS2, DataError, load_scene, split_scenes
 

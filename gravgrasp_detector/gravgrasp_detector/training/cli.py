@@ -6,9 +6,9 @@ Variants (the paper's comparisons): --rotation ex-ez|ey-ez|quat, --target
 gravity-score|binary (binary: VGN-style classifier, positive iff the grasp holds the
 nominal weight; ranked by validness), --data-subset all|precision-only.
 
-The data (training_scenes.py), the losses (training_losses.py) and the loop with its
-resumable checkpoint (training_loop.py) take their options as one TrainConfig
-(training_config.py).
+The data (scenes.py), the losses (losses.py) and the loop with its
+resumable checkpoint (loop.py) take their options as one TrainConfig
+(config.py).
 """
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ import sys
 
 from ..perception import rotation
 from .config import TrainConfig
-from .scenes import DataError
 from .loop import train
+from .scenes import DataError
 
 
 def main(argv=None) -> int:

@@ -19,8 +19,8 @@ from tqdm import tqdm
 from .. import atomic_files
 from ..perception import model_file, networks, rotation, tsdf
 from .config import TrainConfig
-from .scenes import DataError, load_scene, make_example, select_labels, split_scenes
 from .losses import angular_error_deg, auroc, losses, training_outputs
+from .scenes import DataError, load_scene, make_example, select_labels, split_scenes
 
 
 @torch.no_grad()

@@ -5,11 +5,11 @@ to a training machine (a GPU box) that has no simulator to regenerate it.
     python -m gravgrasp_detector.training.scene_archive unpack scenes.npz.xz out/scenes_v2
 
 A scene file (sim_bridge's scene stage) is ~57 KB; the archive keeps what training
-reads (`training_scenes.load_scene`): the TSDF as float16 (at most 2.5e-4 from the
+reads (`scenes.load_scene`): the TSDF as float16 (at most 2.5e-4 from the
 float32 grid on TSDF values in [0, 1]), the labels and the explicit negatives, and drops
 the rest (cameras, object poses, provenance), ~18 KB a scene after xz. Unpacking writes
 one uncompressed file per scene (~260 KB) under its original name, so the train/validation split by file
-name (`training_scenes.split_scenes`) is the same on both machines.
+name (`scenes.split_scenes`) is the same on both machines.
 """
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from gravgrasp_detector.execution.executor import (Abort, ArmMotion, ExecutionLimits, GraspExecutor, check_limits,
-                                                plan_poses, scene_collision)
+                                                   plan_poses, scene_collision)
 from robotiq_driver.gripper_client import GripperTimeout
 from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus
 
@@ -21,7 +21,7 @@ from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
 
 
 class SimArm:
-    """grasp_execution.Arm on a SimWorld: straight-line TCP motions stepped here."""
+    """gravgrasp_detector.execution.executor.Arm on a SimWorld: straight-line TCP motions stepped here."""
     def __init__(self, world):
         self.world = world
 
