@@ -1,0 +1,96 @@
+"""gravgrasp_detector's sub-packages import downwards only (gravgrasp_detector/gravgrasp_detector/
+__init__.py): perception and calibration at the bottom, training and execution on perception,
+tools on training, ros on top. Only ros talks to ROS. Read from the source with `ast`, so an
+import inside a function counts."""
+
+import ast
+import pathlib
+import sys
+
+import pytest
+
+PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "gravgrasp_detector" / "gravgrasp_detector"
+PLUMBING = {"poses", "atomic_files", "problem_log"}  # shared modules at the top; they import no sub-package
+ALLOWED = {  # sub-package -> the sub-packages it may import (besides itself and PLUMBING)
+    "perception": set(),
+    "calibration": set(),
+    "training": {"perception"},
+    "execution": {"perception"},
+    "tools": {"perception", "training"},
+    "ros": {"perception", "execution", "calibration"},
+}
+# rclpy, the ROS message and service packages the project uses, and the ROS runtime's helpers.
+ROS_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "gravgrasp_msgs",
+               "builtin_interfaces", "visualization_msgs", "rcl_interfaces", "ament_index_python")
+
+
+def _modules():
+    return sorted(p for p in PACKAGE_DIR.rglob("*.py"))
+
+
+def _imports(path: pathlib.Path):
+    """(absolute module name, line) for every import in `path`."""
+    package = list(path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts[:-1])
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            if node.module is None:  # from . import a, b
+                for alias in node.names:
+                    yield f"{module}.{alias.name}", node.lineno
+            else:
+                yield module, node.lineno
+
+
+def _sub_package(path: pathlib.Path):
+    parts = path.relative_to(PACKAGE_DIR).parts
+    return parts[0] if len(parts) > 1 else None
+
+
+def test_every_module_sits_in_a_known_sub_package_or_is_plumbing():
+    stray = [p.name for p in PACKAGE_DIR.glob("*.py") if p.stem not in PLUMBING | {"__init__"}]
+    assert not stray, f"flat modules in gravgrasp_detector/gravgrasp_detector (move them into a sub-package): {stray}"
+    subs = {p.name for p in PACKAGE_DIR.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert subs == set(ALLOWED), subs
+    nested = [str(p.relative_to(PACKAGE_DIR)) for p in PACKAGE_DIR.glob("*/*/*.py")]
+    assert not nested, f"one level of sub-packages only: {nested}"
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE_DIR)))
+def test_imports_point_down(path):
+    own = _sub_package(path)
+    wrong = []
+    for module, line in _imports(path):
+        parts = module.split(".")
+        if parts[0] in ROS_MODULES and own != "ros":
+            wrong.append(f"line {line}: {module} (only gravgrasp_detector.ros talks to ROS)")
+        if parts[0] != "gravgrasp_detector" or len(parts) < 2:
+            continue
+        target = parts[1]
+        if target in PLUMBING:
+            continue
+        if own is None:
+            wrong.append(f"line {line}: {module} (plumbing imports no sub-package)")
+        elif target != own and target not in ALLOWED[own]:
+            wrong.append(f"line {line}: {module} ({own} may import {sorted(ALLOWED[own]) or 'nothing'})")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_check_sees_a_bad_import(tmp_path, monkeypatch):
+    """The check itself: an upward import in perception and a ROS import in execution are
+    caught, both inside functions."""
+    fake = tmp_path / "gravgrasp_detector"
+    (fake / "perception").mkdir(parents=True)
+    (fake / "execution").mkdir(parents=True)
+    up = fake / "perception" / "bad.py"
+    up.write_text("def f():\n    from ..execution.executor import GraspExecutor\n")
+    ros = fake / "execution" / "bad.py"
+    ros.write_text("def f():\n    import rclpy  # lazy: not here\n")
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE_DIR", fake)
+    with pytest.raises(AssertionError, match="perception may import nothing"):
+        test_imports_point_down(up)
+    with pytest.raises(AssertionError, match="only gravgrasp_detector.ros talks to ROS"):
+        test_imports_point_down(ros)
