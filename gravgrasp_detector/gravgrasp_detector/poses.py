@@ -1,6 +1,7 @@
-"""Rigid poses: 4x4 homogeneous matrices <-> (position m, unit quaternion x, y, z, w).
+"""Rigid poses: 4x4 homogeneous matrices <-> (position m, unit quaternion x, y, z, w), as a
+pair or as the cell files' list [x, y, z, qx, qy, qz, qw].
 
-The one place the project converts between the two; `ros.interface` adds the
+The one place the project converts between them; `ros.interface` adds the
 geometry_msgs side. Bad input raises `PoseError` with what is wrong; each caller wraps it
 in its own error type (a node input problem, a rejected request). No ROS.
 """
@@ -44,3 +45,17 @@ def pose_from_matrix(X) -> tuple[tuple[float, float, float], tuple[float, float,
     X = np.asarray(X, float)
     q = Rotation.from_matrix(X[:3, :3]).as_quat()
     return tuple(float(v) for v in X[:3, 3]), tuple(float(v) for v in q)
+
+
+def xyz_quat_to_matrix(values) -> np.ndarray:
+    """[x, y, z (m), qx, qy, qz, qw] (a cell file's pose, a calibration result) -> 4x4; raises PoseError."""
+    values = list(values)
+    if len(values) != 7:
+        raise PoseError(f"pose {values} is not 7 values [x, y, z (m), qx, qy, qz, qw]")
+    return matrix_from_pose(values[:3], values[3:])
+
+
+def matrix_to_xyz_quat(X) -> list:
+    """4x4 -> [x, y, z (m), qx, qy, qz, qw] as Python floats."""
+    position, quaternion = pose_from_matrix(X)
+    return [*position, *quaternion]

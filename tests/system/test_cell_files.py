@@ -13,8 +13,9 @@ from std_srvs.srv import SetBool
 
 from scipy.spatial.transform import Rotation
 
-from gravgrasp_detector.calibration.hand_eye import matrix_to_xyz_quat, solve_hand_eye, xyz_quat_to_matrix
+from gravgrasp_detector.calibration.hand_eye import solve_hand_eye
 from gravgrasp_detector.execution.ur_arm_settings import xyz_yaw_to_matrix
+from gravgrasp_detector.poses import matrix_to_xyz_quat, xyz_quat_to_matrix
 from gravgrasp_detector.ros.cell_config import (CellConfigError, base_in_task, camera_in_task, check_consistency,
                                                 convert_camera_pose, load_sections, params_files, plan,
                                                 unknown_parameters)

@@ -43,6 +43,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from ..poses import matrix_to_xyz_quat
+
 MODES = ("eye_to_hand", "eye_in_hand")
 MIN_VIEWS = 5            # calibrateHandEye needs 3; 5 makes one bad view visible in the residuals
 MIN_BOARD_CORNERS = 6    # fewer ChArUco corners make solvePnP unreliable
@@ -106,17 +108,6 @@ class HandEyeResult:
         return (f"{self.mode}: {what} {np.round(self.pose_xyz_quat, 5).tolist()} from {self.views} views; "
                 f"residual {self.residual_mm:.2f} mm / {self.residual_deg:.3f} deg RMS, "
                 f"board reprojection {self.reprojection_px:.2f} px")
-
-
-def matrix_to_xyz_quat(X) -> list:
-    return [float(v) for v in X[:3, 3]] + [float(v) for v in Rotation.from_matrix(X[:3, :3]).as_quat()]
-
-
-def xyz_quat_to_matrix(values) -> np.ndarray:
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_quat(values[3:7]).as_matrix()
-    X[:3, 3] = values[:3]
-    return X
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from ..execution.ur_arm_settings import xyz_yaw_to_matrix  # X_base_task from workspace_origin_in_base
+from ..poses import PoseError, xyz_quat_to_matrix
 
 G_MPS2 = 9.81
 ARM_ADAPTERS = ("service", "ur")
@@ -102,12 +103,10 @@ def base_in_task(workspace_origin_in_base) -> list[float]:
 
 def _pose_matrix(name: str, values) -> np.ndarray:
     values = [float(v) for v in values]
-    if len(values) != 7 or not all(math.isfinite(v) for v in values) or abs(np.linalg.norm(values[3:]) - 1) > 1e-3:
-        raise CellConfigError(f"{name} must be [x, y, z (m), qx, qy, qz, qw] with a unit quaternion, got {values}")
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-    X[:3, 3] = values[:3]
-    return X
+    try:
+        return xyz_quat_to_matrix(values)
+    except PoseError:
+        raise CellConfigError(f"{name} must be [x, y, z (m), qx, qy, qz, qw] with a unit quaternion, got {values}") from None
 
 
 def _xyz_quat(X) -> list:
