@@ -219,7 +219,7 @@ def stopping_arm(arm, stops):
     def move_to(X, speed, timeout):
         if stops(X):
             arm.targets.append((X.copy(), speed))
-            return False, CONTACT
+            return ge.ArmMotion(False, CONTACT, stopped_by_contact=True)
         return original(X, speed, timeout)
     arm.move_to = move_to
 
@@ -295,11 +295,34 @@ def test_a_bad_guard_distance_is_refused_at_start(gripper_port):
             make_executor(gripper_port, close_on_contact_within_m=bad)
 
 
-def test_an_arm_answering_a_pair_is_read_by_its_words():
+def test_a_contact_stop_is_the_arms_flag_not_its_words():
+    """An arm that answers (arrived, message) reports no contact stop, whatever the message
+    says; only the flag set where the stop is detected counts."""
     motion = ge.arm_motion((False, CONTACT))
-    assert (motion.arrived, motion.stopped_by_contact) == (False, True) and np.isnan(motion.distance_left_m)
+    assert (motion.arrived, motion.stopped_by_contact) == (False, False) and np.isnan(motion.distance_left_m)
     assert ge.arm_motion((True, "reached")).stopped_by_contact is False
-    assert ge.arm_motion((False, "outside the arm's reach")).stopped_by_contact is False
+    flagged = ge.ArmMotion(False, "halted", stopped_by_contact=True, distance_left_m=0.02)
+    assert ge.arm_motion(flagged) is flagged
+
+
+@pytest.mark.parametrize("flagged", [True, False], ids=["flag", "words only"])
+def test_only_the_flag_makes_a_stop_on_the_way_to_the_pregrasp_a_contact_stop(gripper_port, flagged):
+    """A contact stop on the way to the pre-grasp disarms (the hand touched something
+    unexpected); the same words without the flag are an ordinary unreachable pose."""
+    ex, arm = make_executor(gripper_port)
+    original = arm.move_to
+
+    def move_to(X, speed, timeout):
+        if round(X[2, 3], 3) == 0.13 and not arm.targets[1:]:  # the pre-grasp, coming from above
+            arm.targets.append((X.copy(), speed))
+            return ge.ArmMotion(False, CONTACT, stopped_by_contact=True) if flagged else (False, CONTACT)
+        return original(X, speed, timeout)
+    arm.move_to = move_to
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.UNREACHABLE, outcome.message
+    assert outcome.message.startswith(f"arm could not reach the pregrasp pose: {CONTACT}"), outcome.message
+    assert ("touched something" in outcome.message) == flagged, outcome.message
+    assert ex.armed != flagged
 
 
 def test_a_lift_stopped_by_contact_opens_and_backs_out(gripper_port):

@@ -143,20 +143,21 @@ class ArmMotion(NamedTuple):
 
 
 def arm_motion(result) -> ArmMotion:
-    """An Arm's answer as an ArmMotion. An arm that answers (arrived, message) only: a
-    contact stop is recognised by its words ("stopped by contact", the sim bridge's and
-    ur_arm's); how far short is unknown."""
+    """An Arm's answer as an ArmMotion. A contact stop is known only from the flag the arm
+    sets where it detects the stop (the sim world's motion, ur_arm's force check, MoveToPose's
+    stopped_by_contact), never from the message's words: an arm that answers (arrived,
+    message) only reports no contact stop, and how far short is unknown."""
     if isinstance(result, ArmMotion):
         return result
     arrived, message = result
-    return ArmMotion(bool(arrived), message, not arrived and "stopped by contact" in message)
+    return ArmMotion(bool(arrived), message)
 
 
 class Arm(Protocol):
     def move_to(self, X_task_tcp: np.ndarray, speed_mps: float, timeout_s: float) -> ArmMotion:
         """ArmMotion(arrived=True, ...) when the TCP arrived; arrived=False with why when the
         arm refused or could not finish the motion; raises ArmTimeout or ArmUnavailable.
-        (arrived, message) is accepted too (`arm_motion`)."""
+        (arrived, message) is accepted too, with no contact stop (`arm_motion`)."""
 
 
 def pose_to_matrix(position, quaternion_xyzw) -> np.ndarray:
