@@ -85,11 +85,44 @@ def test_the_model_is_vgns_panda_hand():
 
 
 @needs_panda
+def test_the_clearance_boxes_are_the_open_hands_collision_geometry():
+    """Every collision vertex of the open hand lies in its part's box, and each box is
+    hardly bigger than its part (the wrist stub behind the hand is the arm's, coarse)."""
+    import trimesh
+    from pydrake.geometry import ProximityProperties
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+    from pydrake.systems.framework import DiagramBuilder
+
+    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=2e-3), DiagramBuilder())
+    hand = panda_hand.add_panda_hand(plant, scene_graph, ProximityProperties())
+    plant.Finalize()
+    ctx, inspector = plant.CreateDefaultContext(), scene_graph.model_inspector()
+    X_tcp_W = plant.CalcRelativeTransform(ctx, hand.tcp_frame, plant.world_frame()).GetAsMatrix4()
+    boxes = dict(zip(panda_hand.HAND_PARTS, panda_hand.OPEN_HAND_BOXES_TCP))
+    for part, body in (("hand", "panda_hand"), ("left finger", "panda_leftfinger"), ("right finger", "panda_rightfinger")):
+        body = plant.GetBodyByName(body)
+        (g,) = plant.GetCollisionGeometriesForBody(body)
+        v = trimesh.load(inspector.GetShape(g).source().path(), force="mesh").vertices
+        X = X_tcp_W @ plant.EvalBodyPoseInWorld(ctx, body).GetAsMatrix4() @ inspector.GetPoseInFrame(g).GetAsMatrix4()
+        v = v @ X[:3, :3].T + X[:3, 3]
+        lo, hi = boxes[part]
+        assert np.all(v.min(0) > lo - 2e-4) and np.all(v.max(0) < hi + 2e-4), part  # inside (pad face: -0.13 mm)
+        # and tight: the hand's box is symmetric, its mesh reaches 100.4 mm to one side, 104 to the other
+        assert np.all(v.min(0) - lo < 1e-3) and np.all(hi - v.max(0) < 4e-3), (part, v.min(0) - lo, hi - v.max(0))
+    # the palm face 4 mm past the TCP, the fingertips at VGN's finger depth, 80 mm apart
+    assert boxes["hand"][1][2] == pytest.approx(0.004) and boxes["left finger"][1][2] == pytest.approx(0.05, abs=5e-4)
+    assert boxes["left finger"][0][1] - boxes["right finger"][1][1] == pytest.approx(0.08)
+
+
+@needs_panda
 def test_closing_on_nothing_reads_as_nothing(world):
     open_and_go_home(world)
     width, state = close(world)
-    # the joint limit stops empty fingers at 0: the target, reached
-    assert state == "at_target" and width == pytest.approx(0.0, abs=1e-4)
+    assert state == "at_target" and width == 0.0  # the target, reached
+    world.advance(0.2)
+    assert not world.fingers_busy()
+    # the joint limit stops empty fingers at 0 (40 N push it 0.4 um past)
+    assert world.finger_width_m() < 1e-4
     verdict = world.parallel_grip()
     assert not verdict.held and "nothing between them" in verdict.reason, verdict
     assert world.grip_force_n() == (0.0, 0.0)

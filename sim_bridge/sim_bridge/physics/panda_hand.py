@@ -39,6 +39,32 @@ PALM_FACE_Z_M = 0.066  # the hand's collision hull ends here, between the finger
 PAD_HALF_WIDTH_X_M = 0.0087  # the pad face's half width (finger mesh, flat at y = 0 for z >= 0.035)
 PAD_Z_M = (0.035, FINGER_LENGTH_M)  # the flat pad face along the finger (finger frame)
 
+# The open hand as boxes in the TCP frame, for a clearance check with the Panda's own
+# geometry (the executor's is robotiq_driver.hand_geometry's 2F-85): the bounds of the
+# collision meshes, fingers at 40 mm (tests/sim_bridge/test_panda_hand.py checks them),
+# and, as for the 2F-85, a coarse stub for the arm's wrist behind the hand.
+HAND_HALF_EXTENTS_M = (0.0316, 0.104)  # the hand's collision mesh, x and y
+HAND_BACK_Z_M = -0.0259  # the hand's collision mesh reaches this far behind the hand frame
+FINGER_HALF_WIDTH_X_M = 0.0105
+FINGER_THICKNESS_M = 0.0264  # from the pad face outwards
+WRIST_STUB_M = 0.08
+HAND_PARTS = ("hand", "wrist", "right finger", "left finger")
+
+
+def _open_hand_boxes_tcp() -> np.ndarray:
+    hx, hy = HAND_HALF_EXTENTS_M
+    z0, y0 = -HAND_TO_TCP_M, FINGER_TRAVEL_M  # the hand frame's z; the open pad face's y
+    finger_z = (FINGER_JOINT_Z_M + z0, FINGER_TIP_Z_M + z0)
+    left = [[-FINGER_HALF_WIDTH_X_M, y0, finger_z[0]], [FINGER_HALF_WIDTH_X_M, y0 + FINGER_THICKNESS_M, finger_z[1]]]
+    right = [[-FINGER_HALF_WIDTH_X_M, -y0 - FINGER_THICKNESS_M, finger_z[0]], [FINGER_HALF_WIDTH_X_M, -y0, finger_z[1]]]
+    return np.array([
+        [[-hx, -hy, HAND_BACK_Z_M + z0], [hx, hy, PALM_FACE_Z_M + z0]],
+        [[-0.045, -0.045, HAND_BACK_Z_M + z0 - WRIST_STUB_M], [0.045, 0.045, HAND_BACK_Z_M + z0]],
+        right, left])
+
+
+OPEN_HAND_BOXES_TCP = _open_hand_boxes_tcp()  # (lo, hi) corners [m], in the order of HAND_PARTS
+
 LEFT_LINKS = ("panda_leftfinger",)
 RIGHT_LINKS = ("panda_rightfinger",)
 PALM_LINKS = ("panda_hand",)
