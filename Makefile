@@ -81,7 +81,7 @@ bench-round: setup
 
 # Committed rounds replayed attempt by attempt under v4's and the new settings (~1.5 h; resumable).
 execution-settings-study: setup
-	@$(ROS) python -m sim_bridge.benchmark.execution_settings_study --workers 2
+	@$(ROS) python -m sim_bridge.studies.execution_settings_study --workers 2
 
 bench-gripper: setup
 	@$(ROS) ros2 run robotiq_driver bench_gripper

@@ -183,7 +183,7 @@ def test_perturbation_study_reproduces_held_grasps_and_loses_them_far_off(tmp_pa
     none does. Bad input is one error."""
     import json
 
-    from sim_bridge.datagen import perturbation_study as ps
+    from sim_bridge.studies import perturbation_study as ps
 
     out = tmp_path / "study.json"
     tables = pathlib.Path(__file__).resolve().parents[2] / "models" / "grasp_tables_v3"

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from gravgrasp_detector.execution.executor import ExecutionLimits
-from sim_bridge.datagen import fingertip_check_study
+from sim_bridge.studies import fingertip_check_study
 from sim_bridge.datagen.antipodal_sampling import sample_grasp_candidates
 from sim_bridge.datagen.object_grasps import MODE_NAMES, load_table
 from sim_bridge.datagen.object_sources import object_from_table

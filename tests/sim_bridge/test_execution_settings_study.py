@@ -3,7 +3,7 @@ its refusal of settings that do not exist (the paired replay itself runs as
 `make execution-settings-study`; its rounds are committed)."""
 import pytest
 
-from sim_bridge.benchmark.execution_settings_study import main, markdown, summarize
+from sim_bridge.studies.execution_settings_study import main, markdown, summarize
 
 
 def attempt(n, old, new, cpu_old=10.0, cpu_new=3.0):

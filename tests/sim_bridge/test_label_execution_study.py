@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sim_bridge.benchmark import label_execution_study as study
+from sim_bridge.studies import label_execution_study as study
 from sim_bridge.datagen.object_grasps import MODE_NAMES
 from sim_bridge.datagen.voxel_labels import voxel_index
 from sim_bridge.physics.scenes import TABLE_HEIGHT_M

@@ -1,6 +1,7 @@
 """sim_bridge's sub-packages import downwards only (sim_bridge/sim_bridge/__init__.py):
-physics at the bottom, then datagen and world side by side, benchmark, ros on top. Only
-ros talks to ROS. Read from the source with `ast`, so an import inside a function counts."""
+physics at the bottom, then datagen and world side by side, benchmark, ros and studies on
+top. Only ros talks to ROS; nothing imports studies. Read from the source with `ast`, so an
+import inside a function counts."""
 
 import ast
 import pathlib
@@ -16,6 +17,7 @@ ALLOWED = {  # sub-package -> the sub-packages it may import (besides itself and
     "world": {"physics"},
     "benchmark": {"physics", "datagen", "world"},
     "ros": {"physics", "world", "benchmark"},
+    "studies": {"physics", "datagen", "world", "benchmark"},  # and no sub-package imports studies
 }
 ROS_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "gravgrasp_msgs", "builtin_interfaces")
 
@@ -74,6 +76,31 @@ def test_imports_point_down(path):
         elif target == "world" and own != "world" and len(parts) > 2:
             wrong.append(f"line {line}: {module} (use the names sim_bridge.world exports, not its modules)")
     assert not wrong, "\n".join(wrong)
+
+
+def test_nothing_imports_the_studies():
+    """The pipeline runs without the studies: no sub-package may import them, and no module
+    of the other packages does either."""
+    assert not [sub for sub, allowed in ALLOWED.items() if "studies" in allowed]
+    wrong = [f"{p}:{line}: {module}" for p in _modules() if _sub_package(p) != "studies"
+             for module, line in _imports(p) if module.startswith("sim_bridge.studies")]
+    for package in ("gravgrasp_detector", "robotiq_driver"):  # absolute imports only reach sim_bridge
+        for p in (PACKAGE_DIR.parents[1] / package / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(p.read_text(), str(p))):
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                         else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+                wrong += [f"{p}:{node.lineno}: {n}" for n in names if n.startswith("sim_bridge.studies")]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_check_sees_an_import_of_a_study(tmp_path, monkeypatch):
+    fake = tmp_path / "sim_bridge"
+    (fake / "benchmark").mkdir(parents=True)
+    bad = fake / "benchmark" / "bad.py"
+    bad.write_text("from ..studies.refusal_study import main\n")
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE_DIR", fake)
+    with pytest.raises(AssertionError, match="benchmark may import"):
+        test_imports_point_down(bad)
 
 
 def test_the_check_sees_a_bad_import(tmp_path, monkeypatch):

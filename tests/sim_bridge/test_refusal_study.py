@@ -9,7 +9,7 @@ import trimesh
 
 from gravgrasp_detector.perception.detection import Grasp
 from gravgrasp_detector.perception.tsdf import TSDFVolume
-from sim_bridge.benchmark import refusal_study as study
+from sim_bridge.studies import refusal_study as study
 from sim_bridge.benchmark.protocol import Protocol
 from sim_bridge.benchmark.rounds import RoundTask
 from sim_bridge.benchmark.sim_cell import SimCell

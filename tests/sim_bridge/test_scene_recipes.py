@@ -204,7 +204,7 @@ def test_perturbed_rows_need_relabel_and_then_label_beside_the_table(grasp_data,
 
 
 def test_table_size_study_relabels_with_cut_tables(grasp_data, made, tmp_path, capsys):  # noqa: F811
-    from sim_bridge.datagen import table_size_study
+    from sim_bridge.studies import table_size_study
     recipes = tmp_path / "recipes"
     scene_recipes.pack(made, recipes)
     out = tmp_path / "study.json"

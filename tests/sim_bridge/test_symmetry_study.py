@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from sim_bridge.datagen import symmetry_study
+from sim_bridge.studies import symmetry_study
 
 
 def raw_results(copy_noise_n, n=60, seed=3):

@@ -16,7 +16,7 @@ So every new-settings attempt starts from exactly the scene and grasp the old on
 and its outcome (success, dropped, no_object, ...) is compared with the old one's. CPU
 and simulated time are measured for each, side by side, on the same machine.
 
-    python -m sim_bridge.benchmark.execution_settings_study --out sim_bridge/results/execution_settings_study
+    python -m sim_bridge.studies.execution_settings_study --out sim_bridge/results/execution_settings_study
 
 One JSON per round under --out/rounds (a rerun resumes), the summary in
 --out/../execution_settings_study.json; the last line printed is `outcome_agreement=`
@@ -36,10 +36,10 @@ import torch
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from ..benchmark.clearing import Refused, clear_table
+from ..benchmark.protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
+from ..benchmark.rounds import RoundTask, make_cell
 from ..parallel import make_executor, run_tasks
-from .clearing import Refused, clear_table
-from .protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
-from .rounds import RoundTask, make_cell
 
 # The committed rounds the study replays: (results dir, method, weight kg, scenes). The
 # held-out tuning meshes (models/vgn_heldout_meshes.txt), both methods, both ends of the

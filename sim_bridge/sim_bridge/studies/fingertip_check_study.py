@@ -9,7 +9,7 @@ kinematics of the finger angles the grasp table recorded when the object settled
 grasp mode: how many labels the check would refuse and the estimate's error along the
 approach. The last line is `power_refused_fraction=`.
 
-    python -m sim_bridge.datagen.fingertip_check_study --scenes out/scenes_v3 \
+    python -m sim_bridge.studies.fingertip_check_study --scenes out/scenes_v3 \
         --objects models/grasp_tables_v2 [--max-scenes 40]
 """
 from __future__ import annotations
@@ -22,11 +22,11 @@ import numpy as np
 from gravgrasp_detector.perception import hand_clearance
 from robotiq_driver.hand_geometry import pad_tip_z_m
 
+from ..datagen.object_grasps import MODE_NAMES
+from ..datagen.perturbed_grasps import load_labelling_table
+from ..datagen.voxel_labels import RESOLUTION, label_poses
 from ..physics.hand_model import FingerKinematics
 from ..physics.scenes import VOLUME_SIZE_M
-from .object_grasps import MODE_NAMES
-from .perturbed_grasps import load_labelling_table
-from .voxel_labels import RESOLUTION, label_poses
 
 
 def compare(scene_dir, objects_dir, max_scenes=0):

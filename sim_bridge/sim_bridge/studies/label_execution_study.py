@@ -18,7 +18,7 @@ A label whose object moved more than MOVED_MM while the scene settled at the wei
 longer describes the scene (a pile shifts at 1.5 kg): it is counted as `moved`, apart.
 Among labels with f_g >= m g the success rate says whether "holds this weight" is true.
 
-    python -m sim_bridge.benchmark.label_execution_study --scenes out/scenes_v3 \
+    python -m sim_bridge.studies.label_execution_study --scenes out/scenes_v3 \
         --objects models/grasp_tables_v2 --meshes ../shared/meshes/vgn_train \
         --out out/label_execution/v3 [--per-mode 40] [--weights 0.1,1.5]
 
@@ -42,15 +42,15 @@ from gravgrasp_detector.perception.detection import Grasp
 from gravgrasp_detector.training.scenes import G_MPS2  # the binary target's m g
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 
+from ..benchmark.clearing import Refused
+from ..benchmark.protocol import Protocol, weight_key
+from ..benchmark.report import outcome_class
+from ..benchmark.sim_cell import SimCell
 from ..datagen.object_grasps import MODE_NAMES, load_table
 from ..datagen.object_sources import source_from_table
 from ..datagen.voxel_labels import RESOLUTION, label_poses
 from ..parallel import make_executor, run_tasks
 from ..physics.scenes import VOLUME_SIZE_M
-from .clearing import Refused
-from .protocol import Protocol, weight_key
-from .report import outcome_class
-from .sim_cell import SimCell
 
 MOVED_MM = 5.0  # the labelled object moved more than this in the settle: the label is stale
 APPROACH_FAILURES = ("jammed_on_approach", "lift_blocked")

@@ -27,12 +27,12 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from scipy.stats import spearmanr
 
+from ..datagen.cli import sim_settings
+from ..datagen.object_grasps import load_table
+from ..datagen.object_sources import object_from_table
 from ..parallel import make_executor, run_tasks
 from ..physics.grasp_simulation import GraspSimulator
 from ..physics.gravity_projection import gravity_rejection_score
-from .cli import sim_settings
-from .object_grasps import load_table
-from .object_sources import object_from_table
 
 DEFAULT_SETTINGS = ("cap100_rate800=max_force_n=100,force_ramp_rate_n_s=800",
                     "cap60_rate800=max_force_n=60,force_ramp_rate_n_s=800")

@@ -22,12 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 from gravgrasp_detector import atomic_files
 
+from ..datagen.object_grasps import load_table
+from ..datagen.object_sources import object_from_table
+from ..datagen.perturbed_grasps import DIRECTIONS, shifted
 from ..parallel import make_executor, run_tasks
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
-from .object_grasps import load_table
-from .object_sources import object_from_table
-from .perturbed_grasps import DIRECTIONS, shifted
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ This study measures which, on a benchmark run's scenes:
    that passes): its outcome is read from the benchmark's round of the same model, or
    executed here when there is none.
 
-    python -m sim_bridge.benchmark.refusal_study --bench sim_bridge/results/heldout_v4 \\
+    python -m sim_bridge.studies.refusal_study --bench sim_bridge/results/heldout_v4 \\
         --method ours --model models/gravgrasp.pt --weights 1.5,0.1 --out sim_bridge/results/refusal_study/heldout_v4
 
 One JSON per scene and weight under --out/scenes (a rerun resumes), summary.json beside
@@ -42,12 +42,12 @@ from gravgrasp_detector.execution.executor import plan_poses
 from gravgrasp_detector.perception.hand_clearance import collisions
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from ..benchmark.clearing import Refused
+from ..benchmark.clutter_benchmark import parse_weights
+from ..benchmark.protocol import METHODS, RANKING_VARIANTS, Protocol, weight_key
+from ..benchmark.report import outcome_class
+from ..benchmark.rounds import RoundTask, make_cell
 from ..parallel import make_executor, run_tasks
-from .clearing import Refused
-from .clutter_benchmark import parse_weights
-from .protocol import METHODS, RANKING_VARIANTS, Protocol, weight_key
-from .report import outcome_class
-from .rounds import RoundTask, make_cell
 
 COLLISION = "the open hand collides"  # hand_clearance.first_collision's refusals start so
 # voxel counts of a refused hand, binned for the summary: a hand grazing a surface's

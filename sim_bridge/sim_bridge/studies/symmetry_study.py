@@ -31,13 +31,13 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from scipy.stats import spearmanr
 
+from ..datagen.cli import sim_settings
+from ..datagen.object_grasps import load_table
+from ..datagen.object_sources import object_from_table
+from ..datagen.object_symmetry import cached_symmetry_transforms, copy_scores, is_mirror, replicate
 from ..parallel import make_executor, run_tasks, task_seed
 from ..physics.grasp_simulation import GraspSimulator
-from .cli import sim_settings
 from .label_settings_study import compare, f_g_matrix, gravity_directions_tcp
-from .object_grasps import load_table
-from .object_sources import object_from_table
-from .object_symmetry import cached_symmetry_transforms, copy_scores, is_mirror, replicate
 
 CONTROL_SHIFT_M = 0.001
 

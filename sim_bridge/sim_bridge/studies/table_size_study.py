@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from gravgrasp_detector import atomic_files
 
+from ..datagen.scene_dataset import SceneTask, label_scene, usable_tables
+from ..datagen.scene_recipes import read_recipes, scene_task, settled_scene
 from ..parallel import make_executor, run_tasks
-from .scene_dataset import SceneTask, label_scene, usable_tables
-from .scene_recipes import read_recipes, scene_task, settled_scene
 
 CUT_REASON = "simulation error (table cut by table_size_study)"  # startswith: not a negative
 
