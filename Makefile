@@ -101,7 +101,7 @@ benchmark-quick: setup
 # Benchmark v2 (issue 16): 16 scenes x 0.1/0.5/1.5 kg on two object sets the models never
 # trained on, the 48 held-out VGN meshes and unseen procedural objects (procedural seed
 # 1000); 176 rounds per object set (Ours, Binary and Ours-Precision at each weight, the two
-# rotation ablations at 0.5 kg; ros_ws/benchmark_chain.sh adds ours_expected: 224), ~2.3 min
+# rotation ablations at 0.5 kg; sim_bridge/scripts/benchmark_chain.sh adds ours_expected: 224), ~2.3 min
 # a round on 2 cores (v4): ~14 h in all, resumable. v1's README run was --scenes 8 into out/benchmark.
 BENCH_SIZE ?= --scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5
 .PHONY: benchmark-heldout benchmark-procedural
@@ -147,7 +147,7 @@ data-report: setup
 # Dataset v4 (issue 15's labels per scene): the v2 tables grown in place to TABLES_V3_GRASPS
 # candidates (models/grasp_tables_v3, committed; its first 256 rows are v2's) and the v3
 # scenes relabelled from their committed recipes with them (the same settled scenes, no
-# physics, ~1 CPU-s a scene). ros_ws/dataset_v4_chain.sh runs both, then training.
+# physics, ~1 CPU-s a scene). sim_bridge/scripts/dataset_v4_chain.sh runs both, then training.
 TABLES_V3_GRASPS ?= 320
 .PHONY: data-tables-v3 data-scenes-v4 data-tables-v5 data-scenes-v5
 data-tables-v3: setup
@@ -157,7 +157,7 @@ data-tables-v3: setup
 data-scenes-v4: setup
 	@$(ROS) ros2 run sim_bridge datagen recipes restore models/scene_recipes_v3 out/scenes_v4 \
 	  --objects models/grasp_tables_v3 --meshes $(CURDIR)/../shared/meshes/vgn_train --workers $(WORKERS) --relabel
-# v5 = v4's tables (copied once) + perturbed rows beside them (ros_ws/dataset_v5_chain.sh runs both and trains)
+# v5 = v4's tables (copied once) + perturbed rows beside them (sim_bridge/scripts/dataset_v5_chain.sh runs both and trains)
 PERTURBED_PER_OBJECT ?= 32
 data-tables-v5: setup
 	@[ -d models/grasp_tables_v5/objects ] || { mkdir -p models/grasp_tables_v5 && \
@@ -223,7 +223,7 @@ data-scenes-v1: setup
 # (v1: out/scenes_v1, make data-scenes-v1; the shipped v2 models: TRAIN_DATA=out/scenes_v2
 # EPOCHS=15 TRAIN_ARGS='--negative-weight=250 --max-scenes=1580', i.e. scenes 0-1579 of the
 # 128-candidate tables; the v3 models: TRAIN_DATA=out/scenes_v3 TRAIN_OUT=out/training_v3 EPOCHS=15
-# TRAIN_ARGS=--negative-weight=250, what ros_ws/dataset_v3_chain.sh runs, so that this copies its
+# TRAIN_ARGS=--negative-weight=250, what sim_bridge/scripts/dataset_v3_chain.sh runs, so that this copies its
 # finished models). Each run resumes from TRAIN_OUT/<variant>/checkpoint.pt; on a GPU
 # machine `train` runs on CUDA (gravgrasp_detector README, *On a GPU machine*).
 # bf16 autocast only where the CPU has AMX (elsewhere it is emulated, slower than fp32).
