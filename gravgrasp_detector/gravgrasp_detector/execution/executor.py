@@ -1,6 +1,6 @@
 """Executing one grasp: checks first, then open, pre-grasp, approach, close, lift, verify.
 
-No ROS here: the executor node (execute_node.py) supplies an `Arm` (moves the TCP
+No ROS here: the executor node (ros/execute_node.py) supplies an `Arm` (moves the TCP
 along straight lines; the sim bridge or a real arm's adapter) and a gripper (the
 Robotiq 2F-85 driver over Modbus RTU) and turns the `Outcome` into the service reply.
 

@@ -1,6 +1,6 @@
 """A Universal Robots arm moving the 2F-85's TCP along straight lines, over RTDE.
 
-The logic behind `ros2 run gravgrasp_detector ur_arm` (ur_arm_node.py), with no rclpy
+The logic behind `ros2 run gravgrasp_detector ur_arm` (ros/ur_arm_node.py), with no rclpy
 and no ur_rtde import: `URArm` takes a `connect()` callable that returns a pair
 (control, receive) with the methods of ur_rtde's `RTDEControlInterface` and
 `RTDEReceiveInterface` (ur-rtde 1.6.5). The node passes the real ones; the tests pass

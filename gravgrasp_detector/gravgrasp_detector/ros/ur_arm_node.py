@@ -22,7 +22,7 @@ control script after a cleared protective or emergency stop) every `reconnect_pe
 Once serving it logs ``ur_arm ready``.
 
 Monitoring only (pendant in Local mode), a flange pose is published only while the
-controller's TCP, judged from the joint angles, is `tcp_in_flange` (ur_arm.py); otherwise
+controller's TCP, judged from the joint angles, is `tcp_in_flange` (execution/ur_arm.py); otherwise
 one error line says what to set. `camera_in_base` and the `calibration_*` values are
 calibrate_camera's record of an eye-to-hand camera; the stack composes the tsdf node's
 `camera_pose` from them and `stack.workspace_origin_in_base` (cell_config.py). The failure paths, each with its test:
