@@ -1,5 +1,5 @@
 """Gravity-aware grasp detection for the Robotiq 2F-85, in sub-packages by role (imports
-point down only; tests/gravgrasp_detector/test_layering.py checks it):
+point down only; tests/gravgrasp_detector/test_detector_layering.py checks it):
 
     ros          the nodes, ROS interface, markers, bag replay, cell files -> execution, calibration, perception
     tools        model cards, score calibration, benchmarks                -> training, perception
