@@ -45,7 +45,7 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
-from gravgrasp_detector.poses import pose_from_matrix
+from gravgrasp_detector.poses import matrix_to_xyz_quat
 from gravgrasp_msgs.msg import GraspArray
 from gravgrasp_msgs.srv import ExecuteGrasp, LoadScene
 
@@ -172,8 +172,7 @@ def run(args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     print(f"soak: rendering the seed-{args.seed} view ...", flush=True)
     depth, intrinsics, T = render_view(args.seed, args.objects)
-    position, quaternion = pose_from_matrix(T)
-    camera_pose = [*position, *quaternion]  # the tsdf's camera_pose parameter: x y z qx qy qz qw
+    camera_pose = matrix_to_xyz_quat(T)  # the tsdf's camera_pose parameter
     procs = Processes(out)
     results = collections.Counter()
     unanswered = refused = 0
