@@ -24,6 +24,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, RoleAssign, Sphere
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.tree import FixedOffsetFrame
 
 from .baseline_files import baseline_file
 
@@ -97,11 +101,6 @@ def add_panda_hand(plant, scene_graph, proximity_properties, X_W_hand=None, floa
     `proximity_properties` replaces every hand collision geometry's contact properties.
     `pad_contact_points`: for point contact, a 2 x 4 grid of 2 mm spheres flush with
     each pad face (hand_model.add_hand has why)."""
-    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, RoleAssign, Sphere
-    from pydrake.math import RigidTransform
-    from pydrake.multibody.parsing import Parser
-    from pydrake.multibody.tree import FixedOffsetFrame
-
     urdf = baseline_file(URDF, baselines_dir)
     parser = Parser(plant, scene_graph)
     parser.SetAutoRenaming(True)
