@@ -13,6 +13,7 @@ import pytest
 
 from gravgrasp_detector.execution import executor as ge
 from gravgrasp_detector.execution.reachability import ArmReachability
+from gravgrasp_detector.perception import hand_clearance
 from robotiq_driver.emulator.emulated_gripper import FingerReading, GripperEmulator, KinematicFingers
 from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 from robotiq_driver.gripper_client import Robotiq2F85
@@ -434,6 +435,34 @@ def test_hand_colliding_with_the_tsdf_is_in_collision(gripper_port):
     between = np.zeros_like(grid)
     between[i0:i1, int(0.14 / voxel):int(0.16 / voxel), int(0.04 / voxel):int(0.09 / voxel)] = 0.3
     assert ex.execute(grasp(), tsdf=(between, voxel, np.zeros(3))).code == ge.ResultCode.SUCCESS
+
+
+def test_another_hand_opens_to_its_width_and_is_checked_with_its_own_boxes(gripper_port, fingers):
+    """ExecutionLimits.hand: a narrower hand (60 mm, fingers 80..100 mm off the axis: a
+    made-up one, the sim bridge passes the Panda's) opens to its width, is checked with its
+    boxes and names its parts; the 2F-85's linkage model of the table check is refused."""
+    toy = hand_clearance.HandGeometry("toy", 0.06, ("palm", "left finger", "right finger"), np.array([
+        [[-0.03, -0.1, -0.1], [0.03, 0.1, -0.05]],
+        [[-0.01, 0.08, -0.05], [0.01, 0.1, 0.05]],
+        [[-0.01, -0.1, -0.05], [0.01, -0.08, 0.05]]]))
+    ex, arm = make_executor(gripper_port, hand=toy)
+    voxel = 0.0075
+    grid = np.zeros((40, 40, 40), np.float32)
+    i0, i1 = int(0.135 / voxel), int(0.165 / voxel)
+    # where the 2F-85's left distal link is (the test above), between the toy's fingers
+    grid[i0:i1, int(0.195 / voxel):int(0.225 / voxel), int(0.04 / voxel):int(0.12 / voxel)] = 0.3
+    assert ex.execute(grasp(), tsdf=(grid, voxel, np.zeros(3))).code == ge.ResultCode.SUCCESS
+    outside = np.zeros_like(grid)
+    outside[i0:i1, int(0.0525 / voxel):int(0.0675 / voxel), int(0.04 / voxel):int(0.12 / voxel)] = 0.3
+    hit = ex.execute(grasp(), tsdf=(outside, voxel, np.zeros(3)))
+    assert hit.code == ge.ResultCode.IN_COLLISION and "finger:" in hit.message, hit.message
+    fingers.size_m = None
+    assert ex.execute(grasp()).code == ge.ResultCode.NO_OBJECT
+    assert gripper_port.emulator.width_m == pytest.approx(0.06, abs=1e-3)  # opened to the toy's width
+    with pytest.raises(ValueError, match="models the 2F-85's linkage"):
+        make_executor(gripper_port, hand=toy, table_z_m=0.05)
+    with pytest.raises(ValueError, match="one \\(lo, hi\\) box per part"):
+        hand_clearance.HandGeometry("bad", 0.06, ("palm",), np.zeros((2, 2, 3)))
 
 
 def test_closing_fingertips_below_the_table_are_refused(gripper_port):

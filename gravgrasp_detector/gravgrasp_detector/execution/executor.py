@@ -15,7 +15,7 @@ Stages and what stops them (result codes are ExecuteGrasp.srv's):
              above the table top (limits.table_z_m)              IN_COLLISION
   fresh view the latest TSDF is recent (node: max_tsdf_age_s)    STALE_SCENE
   connect    activate                                            GRIPPER_FAULT
-  open; once per connection: move to the pre-grasp raised by the
+  open (to limits.hand's opening); once per connection: move to the pre-grasp raised by the
   lift height and calibrate there (close on nothing), or take a
   stored value; pre-grasp, approach, close, lift                  GRIPPER_FAULT / ARM_FAULT / TIMEOUT / NOT_ARMED
              an approach or lift the arm stops short (its contact
@@ -54,6 +54,7 @@ from robotiq_driver.gripper_client import GripperError, GripperTimeout
 from robotiq_driver.gripper_registers import ObjectStatus
 
 from ..perception import hand_clearance
+from ..perception.hand_clearance import ROBOTIQ_2F85, HandGeometry
 from ..poses import PoseError, matrix_from_pose
 
 
@@ -114,8 +115,11 @@ class ExecutionLimits:
     # every connection (open, close on nothing at the grip's speed and force, open).
     empty_closed_width_m: float | None = None
     # Table top in the task frame (m): refuse grasps whose closing fingers would reach
-    # below it (the labels' check). None: no table check.
+    # below it (the labels' check; the 2F-85's linkage only). None: no table check.
     table_z_m: float | None = None
+    # The hand: its opening and open-hand boxes (the clearance check). Not a node
+    # parameter: the node runs the 2F-85; the sim bridge's benchmark passes the Panda's.
+    hand: HandGeometry = ROBOTIQ_2F85
     # Guarded approach (m): an approach the arm's contact stop halts at most this far
     # short of the grasp closes there (1 mm backed off) instead of backing out. 0: off.
     # Why: in the benchmark most of Ours' approaches stopped by contact stopped within
@@ -196,7 +200,7 @@ def scene_collision(poses, tsdf, limits: ExecutionLimits) -> str:
     """'' if the open hand clears the TSDF at the pre-grasp, along the approach and at the
     grasp (`tsdf`: (grid, voxel_size_m, origin), or None: unchecked), and the closing
     fingertips stay above the table (limits.table_z_m); otherwise why not."""
-    hit = hand_clearance.first_collision(poses, tsdf) if tsdf is not None else ""
+    hit = hand_clearance.first_collision(poses, tsdf, limits.hand) if tsdf is not None else ""
     if not hit and limits.table_z_m is not None:
         hit = hand_clearance.closed_tips_below_table(poses["grasp"], tsdf, limits.table_z_m)
     return hit
@@ -215,6 +219,9 @@ class GraspExecutor:
         if limits.table_z_m is not None and not np.isfinite(limits.table_z_m):
             raise ValueError(f"table_z_m {limits.table_z_m}: give the table top's height in the task frame [m] "
                              "(0.0 when the task frame's origin is on the table)")
+        if limits.table_z_m is not None and not limits.hand.closing_tips_modelled:
+            raise ValueError(f"table_z_m: the fingertip-against-table check models the 2F-85's linkage, not the "
+                             f"{limits.hand.name} hand's: leave table_z_m unset (None) for it")
         if not (np.isfinite(limits.close_on_contact_within_m) and limits.close_on_contact_within_m >= 0):
             raise ValueError(f"close_on_contact_within_m {limits.close_on_contact_within_m}: give how far short of "
                              "the grasp [m] a contact-stopped approach may close (0 = always back out)")
@@ -307,7 +314,7 @@ class GraspExecutor:
         lim = self.limits
         self._require_armed("open the gripper")
         gripper = self._gripper()
-        self._grip(gripper, 0.085, "opening")
+        self._grip(gripper, self.limits.hand.open_width_m, "opening")
         if "calibrate" in poses:  # once per connection
             self._move_to_start("calibration", poses["calibrate"])
             self._calibrate()
@@ -399,7 +406,7 @@ class GraspExecutor:
         disarmed (the hand may be stuck in the scene: a person must look)."""
         try:
             if open_first:
-                self._grip(gripper, 0.085, "opening")
+                self._grip(gripper, self.limits.hand.open_width_m, "opening")
             self._move("pre-grasp (backing out)", poses["pregrasp"], self.limits.approach_speed_mps)
         except Abort as failed:
             self.armed = False
