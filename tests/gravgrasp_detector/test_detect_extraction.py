@@ -1,5 +1,6 @@
 """Grasp extraction on hand-made volumes, and the network path that feeds it."""
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -52,6 +53,7 @@ def test_hand_made_volume_gives_expected_grasps_in_order():
     grasps = select()
     assert [g.voxel_index for g in grasps] == [(20, 20, 8), (20, 25, 8), (10, 10, 8), (30, 12, 9)]
     assert [g.score_n for g in grasps] == [9.0, 7.0, 5.0, 2.0]
+    assert [g.rank_key for g in grasps] == [9.0, 7.0, 5.0, 2.0]  # ranked by the score in N
     expected_R = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])
     for g in grasps:
         np.testing.assert_allclose(g.pose[:3, :3], expected_R, atol=1e-7)
@@ -251,20 +253,52 @@ def test_bad_grids_raise_one_clear_error(grid, cause, words):
 
 def test_validness_ranking_for_a_binary_model():
     """rank_by="validness" (a --target binary model): ranked by validness, min_score_n in N
-    does not apply, and each grasp's score_n is the validness it was ranked by."""
+    does not apply; a binary model's grasps carry score_n NaN (its score head is untrained,
+    and score_n is newtons, never a probability) and rank_key = validness. A score model
+    ranked by validness gives the same grasps, each with its score in N."""
     torch.manual_seed(0)
     net = networks.GraspNet().eval()
     grid = table_grid().numpy()
     options = detection.DetectionOptions(validness_threshold=0.0, min_score_n=1e6, max_grasps=10)
     by_score = detection.detect_grasps(net, grid, VS, options=options)
-    by_validness = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(options, rank_by="validness"))
+    binary = dataclasses.replace(options, rank_by="validness", has_score=False)
+    by_validness = detection.detect_grasps(net, grid, VS, options=binary)
     assert not by_score and by_validness  # no grasp holds 1e6 N; probabilities ignore it
     assert [g.validness for g in by_validness] == sorted((g.validness for g in by_validness), reverse=True)
-    assert all(g.score_n == pytest.approx(g.validness) for g in by_validness)
+    assert all(math.isnan(g.score_n) and g.rank_key == g.validness for g in by_validness)
+    scored = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(binary, has_score=True))
+    assert [g.voxel_index for g in scored] == [g.voxel_index for g in by_validness]
+    with torch.inference_mode():
+        score_n = net.score_and_validness_from_half(net.half_features(torch.from_numpy(grid)[None, None]))[0][0]
+    assert [g.score_n for g in scored] == pytest.approx([float(score_n[g.voxel_index]) for g in scored], abs=1e-5)
+    assert all(g.rank_key == g.validness for g in scored)
     with pytest.raises(ValueError, match="rank_by"):
         detection.DetectionOptions(rank_by="probability")
+    with pytest.raises(ValueError, match="has_score is False"):
+        detection.DetectionOptions(rank_by="expected_score", has_score=False)
     with pytest.raises(ValueError, match="precision"):
         detection.DetectionOptions(precision="fp16")
+
+
+def test_a_model_without_a_score_is_selected_and_ranked_by_validness_alone():
+    """score_n None (a binary model): candidates and order come from validness only (min_score_n
+    in N does not apply), every grasp carries score_n NaN and rank_key = its validness. A NaN
+    score is refused, not let drop (or keep) every voxel."""
+    _, validness = hand_made_outputs()
+    validness[:] = 0.1
+    for index, v in {(10, 10, 8): 0.9, (30, 12, 9): 0.8, (20, 20, 8): 0.6, (5, 35, 30): 0.99}.items():
+        validness[index] = v
+    options = detection.DetectionOptions(min_surface_voxels=0, rank_by="validness", has_score=False, min_score_n=50.0)
+    grasps = detection.select_grasps(table_grid(), None, validness, top_down_channels, "ex-ez", VS, options=options)
+    assert [g.voxel_index for g in grasps] == [(10, 10, 8), (30, 12, 9), (20, 20, 8)]  # (5, 35, 30): off the surface
+    assert [g.rank_key for g in grasps] == pytest.approx([0.9, 0.8, 0.6])
+    assert [g.validness for g in grasps] == pytest.approx([0.9, 0.8, 0.6])
+    assert all(math.isnan(g.score_n) for g in grasps)
+    with pytest.raises(ValueError, match="score_n has NaN"):
+        detection.select_grasps(table_grid(), torch.full((R, R, R), math.nan), validness, top_down_channels,
+                                "ex-ez", VS, options=options)
+    with pytest.raises(ValueError, match="needs a gravity-rejection score"):
+        detection.select_grasps(table_grid(), None, validness, top_down_channels, "ex-ez", VS)
 
 
 def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one():
@@ -283,6 +317,7 @@ def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one
                                           options=options, rank_key=expected)
     assert [g.voxel_index for g in by_expected] == [(20, 20, 8), (10, 10, 8), (20, 25, 8), (30, 12, 9)]
     assert [g.score_n for g in by_expected] == [9.0, 5.0, 7.0, 2.0]
+    assert [g.rank_key for g in by_expected] == pytest.approx([4.95, 4.75, 4.2, 2.0])
     # the 8 N neighbour of the 9 N peak, made sure, outranks it and suppresses it (NMS on the key)
     validness[21, 20, 8] = 1.0
     by_expected = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS,
@@ -295,6 +330,7 @@ def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one
     grasps = detection.detect_grasps(net, table_grid().numpy(), VS, options=opts)
     keys = [g.validness * g.score_n for g in grasps]
     assert grasps and keys == sorted(keys, reverse=True)
+    assert [g.rank_key for g in grasps] == pytest.approx(keys)
 
 
 def test_clear_hand_publishes_the_neighbour_the_open_hand_can_reach():

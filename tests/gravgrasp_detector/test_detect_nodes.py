@@ -183,3 +183,37 @@ def test_detect_parameters_change_at_run_time(ros_node, ros_process, model_path)
     request = SetParameters.Request(parameters=[Parameter("min_score_n", value=float(best) + 1.0).to_parameter_msg()])
     assert ros_testing.call_service(ros_node, client, request).results[0].successful
     assert detect_once() == []  # nothing holds that much: an empty, still published, answer
+
+
+def test_a_binary_model_publishes_nan_scores_ranked_by_validness(ros_node, ros_process, tmp_path):
+    """A model trained with --target binary has no score in N (its score head is untrained):
+    the node publishes gravity_rejection_score NaN, never its probability under a newton's
+    name, ranks by validness and applies no min_score_n in N."""
+    import math
+
+    from gravgrasp_msgs.msg import GraspArray
+    from gravgrasp_msgs.msg import TSDFVolume as TSDFVolumeMsg
+
+    torch.manual_seed(0)
+    path = tmp_path / "binary.pt"
+    model_file.save_model(path, networks.GraspNet("ex-ez"), TSDFVolume(),
+                          training_data={"target": "binary", "note": "untrained (test fixture)"})
+    detect = ros_process("gravgrasp_detector", "detect", params={
+        "model_path": str(path), "validness_threshold": THRESHOLD, "min_score_n": 1e4, "max_grasps": 10})
+    pub = ros_node.create_publisher(TSDFVolumeMsg, "/tsdf", VOLUME_QOS)
+    grasps = collect(ros_node, GraspArray, "/grasps")
+    assert ros_testing.wait_for_subscriber(ros_node, "/tsdf", 30)
+    detect.wait_for_output("no score in N, it publishes NaN", timeout_s=30)
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[:, :, 3:7], grid[:, :, 7:11] = 0.3, 0.7
+    msg = TSDFVolumeMsg(resolution=40, voxel_size_m=0.0075, truncation_m=0.03)
+    msg.header.frame_id = "task"
+    msg.origin.orientation.w = 1.0
+    msg.tsdf, msg.weights = grid.ravel(), (grid > 0).astype(np.float32).ravel()
+    pub.publish(msg)
+    assert ros_testing.spin_until(ros_node, lambda: bool(grasps), 20), detect.output()[-2000:]
+    published = grasps[-1].grasps
+    assert len(published) == 10  # min_score_n 1e4 N does not apply to a probability
+    assert all(math.isnan(g.gravity_rejection_score) for g in published)
+    validness = [g.validness for g in published]
+    assert validness == sorted(validness, reverse=True) and all(v >= THRESHOLD for v in validness)

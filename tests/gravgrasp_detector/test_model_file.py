@@ -132,3 +132,7 @@ def test_ranking_follows_the_model_unless_asked_and_refuses_newtons_of_a_binary_
     assert "grasps ranked by validness x score; each carries its score in N" in \
         startup_lines(str(shipped), meta, "fp32", 1, "expected_score")
     assert not any("ranked" in line for line in startup_lines(str(shipped), meta, "fp32", 1))
+    binary = {**meta, "training_data": {**meta["training_data"], "target": "binary"}}
+    assert "grasps ranked by validness (a binary model: no score in N, it publishes NaN)" in \
+        startup_lines(str(shipped), binary, "fp32", 1)
+    assert model_file.has_score(score_model) and model_file.has_score({}) and not model_file.has_score(binary_model)

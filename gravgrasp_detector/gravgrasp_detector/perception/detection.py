@@ -7,11 +7,12 @@ numpy until the final few grasps):
    its training domain far from anything it saw. Voxels inside objects and in
    occluded space are kept: a power grasp's TCP can lie inside the object, and the
    learned validness head (paper Sec. V) is what rejects bad ones.
-2. validness = sigmoid(logit) >= validness_threshold and score_n >= min_score_n
-   (and > 0).
-3. non-maximum suppression: keep a voxel only if its score is the maximum of the
-   surviving scores in its (2 * nms_radius_voxels + 1)^3 neighbourhood.
-4. rank by score (highest first), evaluate the rotation head only at the first few
+2. validness = sigmoid(logit) >= validness_threshold and, ranked by a score (rank_by
+   "score" or "expected_score"), score_n >= min_score_n (and > 0).
+3. non-maximum suppression: keep a voxel only if its ranking key (rank_by: the score,
+   validness or validness x score) is the maximum of the surviving keys in its
+   (2 * nms_radius_voxels + 1)^3 neighbourhood.
+4. rank by that key (highest first), evaluate the rotation head only at the first few
    voxels and rebuild R (rotation.py).
 5. something to hold: keep a grasp only if at least `min_surface_voxels` observed
    on-or-behind-surface voxels (0 < grid <= 0.5) lie in the closing region of the open
@@ -31,7 +32,7 @@ bits: 0.125 N at 30 N) does not decide near-ties.
 The TCP position is the voxel centre: origin + (index + 0.5) * voxel_size_m.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -55,7 +56,7 @@ class DetectionOptions:
     and how the network runs. The detect node's parameters of the same names."""
 
     validness_threshold: float = 0.5
-    min_score_n: float = 0.0  # with rank_by "score" only
+    min_score_n: float = 0.0  # with rank_by "score" and "expected_score"
     max_grasps: int = 20
     surface_distance_voxels: int = 6
     nms_radius_voxels: int = 2  # 0: no non-maximum suppression
@@ -69,6 +70,10 @@ class DetectionOptions:
     # high score, which the score head was never trained at, no longer outranks a sure
     # one); `model_file.ranking(metadata)` says which a model needs
     rank_by: str = "score"
+    # False for a model without a gravity-rejection score (trained with --target binary:
+    # its score head is untrained): its grasps carry score_n NaN, and only rank_by
+    # "validness" applies. `model_file.has_score(metadata)` says which.
+    has_score: bool = True
     clear_hand: bool = False  # step 6
     pregrasp_distance_m: float = 0.05  # where step 6's approach starts (the executor's)
 
@@ -77,14 +82,26 @@ class DetectionOptions:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.rank_by not in RANKINGS:
             raise ValueError(f"rank_by {self.rank_by!r}: use one of {RANKINGS}")
+        if not self.has_score and self.rank_by != "validness":
+            raise ValueError(f"rank_by {self.rank_by!r} needs a gravity-rejection score, and has_score is False "
+                             "(a model trained with --target binary): rank by 'validness'")
 
 
 @dataclass
 class Grasp:
     pose: np.ndarray  # 4x4 T_task_tcp (float64)
-    score_n: float  # gravity-rejection score [N]
+    # gravity-rejection score [N], always newtons; NaN for a model that has none (trained
+    # with --target binary, VGN): its validness is what it knows
+    score_n: float
     validness: float  # [0, 1]
     voxel_index: tuple  # (i, j, k)
+    # what the grasps were ranked by, higher first (rank_by: score_n, validness or
+    # validness x score_n); None (a grasp made by hand): score_n
+    rank_key: float | None = None
+
+    def __post_init__(self):
+        if self.rank_key is None:
+            self.rank_key = self.score_n
 
 
 def bf16_available():
@@ -156,8 +173,9 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
 
     With options.rank_by "score" they are ranked by the gravity-rejection score [N], at
     least options.min_score_n; with "validness" by validness (min_score_n does not
-    apply, and each Grasp's score_n carries the validness it was ranked by); with
-    "expected_score" by validness x score (each Grasp's score_n is still the score).
+    apply); with "expected_score" by validness x score. Each Grasp's score_n is the
+    score in N (NaN when options.has_score is False: a binary model's score head is
+    untrained) and its rank_key what it was ranked by.
 
     model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
     value convention. origin: the grid corner in the task frame (3-vector or 4x4).
@@ -176,14 +194,11 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
     half = half.float()
     score_n, validness_logit = model.score_and_validness_from_half(half)
     validness = torch.sigmoid(validness_logit[0])
-    rank_key = None
-    if options.rank_by == "validness":
-        score_n, options = validness[None], replace(options, min_score_n=0.0)
-    elif options.rank_by == "expected_score":
-        rank_key = score_n[0] * validness
+    score_n = score_n[0] if options.has_score else None
+    rank_key = score_n * validness if options.rank_by == "expected_score" else None
     return select_grasps(
         grid,
-        score_n[0],
+        score_n,
         validness,
         lambda index: model.rotation_at(half, index, half=True),
         model.rotation_representation,
@@ -260,18 +275,35 @@ def select_grasps(
     rank_key=None,
 ):
     """Steps 1-5 of the module doc on network outputs, ranked (and suppressed) by
-    ``rank_key``, by default ``score_n`` (options' precision and rank_by are the caller's:
-    they choose the outputs).
+    ``rank_key``, by default ``score_n``, or validness with options.rank_by "validness"
+    (options' precision is the caller's: it chose the outputs).
 
-    grid, score_n, validness, rank_key: (R, R, R) tensors; rotation_channels_at: callable
-    (N, 3) long voxel indices -> (N, C) rotation channels.
+    grid, score_n, validness, rank_key: (R, R, R) tensors; score_n None for a model
+    without a score (its grasps carry score_n NaN; rank_by must be "validness"): a NaN
+    score is refused rather than let it drop (or keep) every voxel. rotation_channels_at:
+    callable (N, 3) long voxel indices -> (N, C) rotation channels.
     """
     grid = torch.as_tensor(grid)
-    score_n = torch.as_tensor(score_n).float()
     validness = torch.as_tensor(validness).float()
+    by_score = options.rank_by != "validness"
+    if score_n is not None:
+        score_n = torch.as_tensor(score_n).float()
+        if bool(torch.isnan(score_n).any()):
+            raise ValueError("score_n has NaN: pass score_n=None for a model without a gravity-rejection score")
+    elif by_score:
+        raise ValueError(f"rank_by {options.rank_by!r} needs a gravity-rejection score, and score_n is None: "
+                         "rank by 'validness'")
     candidate = near_surface_mask(grid, options.surface_distance_voxels) & (validness >= options.validness_threshold)
-    candidate &= (score_n >= options.min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
-    key = score_n if rank_key is None else torch.as_tensor(rank_key).float()
+    if by_score:
+        candidate &= (score_n >= options.min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
+        key = score_n
+    else:  # the score, if any, selects nothing: validness alone
+        candidate &= validness > 0
+        key = validness
+    if rank_key is not None:
+        key = torch.as_tensor(rank_key).float()
+        if bool(torch.isnan(key).any()):
+            raise ValueError("rank_key has NaN: NaN keys would drop out of NMS and ranking unnoticed")
 
     def poses_at(index):  # (N, 3) voxel indices -> (N, 4, 4) grasps in the grid's frame
         poses = np.zeros((len(index), 4, 4))
@@ -282,38 +314,38 @@ def select_grasps(
         return poses
 
     def ranked(candidate):  # steps 3-5
-        return _ranked_poses(grid, candidate, key, score_n, validness, poses_at, voxel_size_m, options)
+        return _ranked_poses(grid, candidate, key, poses_at, voxel_size_m, options)
     grasps = ranked(candidate)
     if options.clear_hand:
         grasps = _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options)
-    index, scores, valid, poses = grasps
+    index, poses = grasps
     if len(index) == 0:
         return []
+    at = tuple(index.T)
+    scores = score_n[at].tolist() if score_n is not None else [float("nan")] * len(index)
     poses = _to_transform(origin) @ poses
     return [
-        Grasp(pose=pose, score_n=score, validness=v, voxel_index=tuple(ijk))
-        for pose, score, v, ijk in zip(poses, scores.tolist(), valid.tolist(), index.tolist())
+        Grasp(pose=pose, score_n=score, validness=v, voxel_index=tuple(ijk), rank_key=k)
+        for pose, score, v, ijk, k in zip(poses, scores, validness[at].tolist(), index.tolist(), key[at].tolist())
     ]
 
 
-def _ranked_poses(grid, candidate, key, score_n, validness, poses_at, voxel_size_m, options):
-    """Steps 3-5 on the candidate voxels: (index (N, 3), scores (N,), validness (N,),
-    poses (N, 4, 4) in the grid's frame), best first, N <= max_grasps. `poses_at`:
-    (N, 3) voxel indices -> (N, 4, 4) grasp poses."""
+def _ranked_poses(grid, candidate, key, poses_at, voxel_size_m, options):
+    """Steps 3-5 on the candidate voxels: (index (N, 3), poses (N, 4, 4) in the grid's
+    frame), best first by `key`, N <= max_grasps. `poses_at`: (N, 3) voxel indices ->
+    (N, 4, 4) grasp poses."""
     max_grasps = int(options.max_grasps)
     masked = torch.where(candidate, key, torch.full_like(key, -1.0))
     r = int(options.nms_radius_voxels)
     if r > 0:
         candidate = candidate & (masked == cube_max(masked, r))
     index = candidate.nonzero()
-    scores = score_n[candidate]
     # rotations for a few more than max_grasps: step 5 may veto some
     ranked = 4 * max_grasps if options.min_surface_voxels > 0 else max_grasps
     order = torch.sort(key[candidate], descending=True, stable=True).indices[:ranked]
-    index, scores = index[order], scores[order]
-    valid = validness[tuple(index.T)]
+    index = index[order]
     if len(index) == 0:
-        return index, scores, valid, np.zeros((0, 4, 4))
+        return index, np.zeros((0, 4, 4))
     poses = poses_at(index)
     keep = np.arange(len(index))
     if options.min_surface_voxels > 0:
@@ -326,7 +358,7 @@ def _ranked_poses(grid, candidate, key, score_n, validness, poses_at, voxel_size
                 break
         keep = np.asarray(kept, int)
     keep = torch.as_tensor(keep[:max_grasps], dtype=torch.long)
-    return index[keep], scores[keep], valid[keep], poses[keep.numpy()]
+    return index[keep], poses[keep.numpy()]
 
 
 CLEAR_HAND_ROUNDS = 8  # step 6's reruns of steps 3-5; what still collides after them is dropped
@@ -349,7 +381,7 @@ def _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options
 
     r = max(int(options.nms_radius_voxels), 0)
     for _ in range(CLEAR_HAND_ROUNDS):
-        index, _, _, poses = grasps
+        index, poses = grasps
         new = ~checked[tuple(index.T)]
         check(index[new], poses[new.numpy()])
         blocked = index[~clear[tuple(index.T)]]
@@ -363,6 +395,6 @@ def _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options
             check(near_index, poses_at(near_index))
         candidate &= ~checked | clear
         grasps = ranked(candidate)
-    index, scores, valid, poses = grasps
+    index, poses = grasps
     keep = (checked & clear)[tuple(index.T)]
-    return index[keep], scores[keep], valid[keep], poses[keep.numpy()]
+    return index[keep], poses[keep.numpy()]

@@ -100,6 +100,12 @@ def training_target(metadata: dict) -> str:
     return str((metadata.get("training_data") or {}).get("target", "gravity-score"))
 
 
+def has_score(metadata: dict) -> bool:
+    """Whether the model predicts a gravity-rejection score in N (detection.DetectionOptions.
+    has_score): not one trained with `--target binary`, whose score head is untrained."""
+    return training_target(metadata) != "binary"
+
+
 RANKING_CHOICES = ("model", "score", "expected_score", "validness")
 
 
@@ -110,7 +116,7 @@ def ranking(metadata: dict, requested: str = "model") -> str:
     a binary model refuses them (ModelFileError); "validness" suits any model."""
     if requested not in RANKING_CHOICES:
         raise ModelFileError(f"ranking {requested!r}: use one of {', '.join(RANKING_CHOICES)}")
-    binary = training_target(metadata) == "binary"
+    binary = not has_score(metadata)
     if requested == "model":
         return "validness" if binary else "score"
     if binary and requested != "validness":

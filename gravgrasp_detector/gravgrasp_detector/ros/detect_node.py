@@ -2,8 +2,8 @@
 
 Subscribes  tsdf           gravgrasp_msgs/TSDFVolume (reliable, transient local, depth 1)
 Publishes   grasps         gravgrasp_msgs/GraspArray, sorted by score (highest first; a model
-                           trained with --target binary: by validness, score 0)
-            grasp_markers  visualization_msgs/MarkerArray, gripper outlines by score
+                           trained with --target binary: by validness, score NaN)
+            grasp_markers  visualization_msgs/MarkerArray, gripper outlines by rank key
                            (built only while something subscribes, e.g. RViz)
 Only the newest volume is processed: a volume arriving while the network runs
 replaces any waiting one, so no queue grows when input outpaces detection.
@@ -83,8 +83,8 @@ def startup_lines(model_path, metadata, precision, threads, rank_by=None):
              f"model output: {model_file.training_target(metadata)}, rotation {net['rotation_representation']}"]
     rank_by = rank_by or model_file.ranking(metadata)
     if rank_by == "validness":
-        lines.append("grasps ranked by validness" + (" (a binary model: no score in N)"
-                                                     if model_file.training_target(metadata) == "binary" else ""))
+        lines.append("grasps ranked by validness" + ("" if model_file.has_score(metadata) else
+                                                     " (a binary model: no score in N, it publishes NaN)"))
     elif rank_by == "expected_score":
         lines.append("grasps ranked by validness x score; each carries its score in N")
     if "scenes_train" in td:
@@ -142,8 +142,10 @@ class DetectNode(Node):
             raise ModelFileError(f"precision parameter: {e}") from None
         self.model_name = os.path.basename(self.model_path)
         # A binary model (trained with --target binary) is ranked by its validness, a
-        # success probability; its grasps carry gravity_rejection_score 0 (no newtons).
+        # success probability; its score head is untrained, so its grasps carry
+        # gravity_rejection_score NaN (no newtons), never a probability in its place.
         self.rank_by = model_file.ranking(self.metadata, ranking)  # ModelFileError -> main
+        self.has_score = model_file.has_score(self.metadata)
         self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
         self.grasps_pub = self.create_publisher(GraspArray, "grasps", 10)
         self.markers_pub = self.create_publisher(MarkerArray, "grasp_markers", 10)
@@ -194,6 +196,7 @@ class DetectNode(Node):
             nms_radius_voxels=param("nms_radius_voxels"),
             precision=self.precision,
             rank_by=self.rank_by,
+            has_score=self.has_score,
             clear_hand=param("clear_hand"),
             pregrasp_distance_m=param("pregrasp_distance_m"),
         )
@@ -205,7 +208,7 @@ class DetectNode(Node):
         pregrasp = float(param("pregrasp_distance_m"))
         out.grasps = [
             GraspMsg(pose=pose_msg_from_matrix(g.pose), validness=g.validness,
-                     gravity_rejection_score=g.score_n if self.rank_by != "validness" else 0.0,
+                     gravity_rejection_score=g.score_n,  # NaN: a binary model's grasps
                      voxel_index=list(g.voxel_index), pregrasp_distance_m=pregrasp)
             for g in grasps
         ]
@@ -217,8 +220,9 @@ class DetectNode(Node):
         now = time.monotonic()
         if now - self._last_latency_log >= 5.0:  # the first one, then every 5 s
             self._last_latency_log = now
-            best = "" if not grasps else (f", best {grasps[0].score_n:.2f} N" if self.rank_by != "validness"
-                                          else f", best validness {grasps[0].validness:.2f}")
+            best = "" if not grasps else (f", best {grasps[0].score_n:.2f} N" if self.rank_by == "score"
+                                          else f", best validness {grasps[0].validness:.2f}"
+                                          + (f" ({grasps[0].score_n:.2f} N)" if self.has_score else ""))
             self.get_logger().info(
                 f"{len(grasps)} grasps{best}; latency {latency_s * 1e3:.1f} ms "
                 f"(median {statistics.median(self.latencies_ms):.1f} ms of last {len(self.latencies_ms)}); "

@@ -1,4 +1,4 @@
-"""RViz markers for grasps: schematic 2F-85 outlines coloured by score (no rclpy).
+"""RViz markers for grasps: schematic 2F-85 outlines coloured by rank key (no rclpy).
 
 Outline in the TCP frame (z = approach, y = closing axis), fingers open (85 mm):
 
@@ -31,23 +31,25 @@ OUTLINE = np.array([
 ])
 
 
-def score_colour(score_n, max_score_n):
+def rank_colour(key, max_key):
     """Red (weakest) -> yellow -> green (strongest of this set)."""
-    f = 0.0 if max_score_n <= 0 else float(np.clip(score_n / max_score_n, 0.0, 1.0))
+    f = 0.0 if not max_key > 0 else float(np.clip(key / max_key, 0.0, 1.0))
     return ColorRGBA(r=float(min(1.0, 2 * (1 - f))), g=float(min(1.0, 2 * f)), b=0.0, a=1.0)
 
 
 def grasp_markers(grasps, header, line_width_m=0.002):
-    """MarkerArray: DELETEALL, then one LINE_LIST per grasp (namespace 'grasps', id = rank)."""
+    """MarkerArray: DELETEALL, then one LINE_LIST per grasp (namespace 'grasps', id = rank),
+    coloured by what the grasps were ranked by (Grasp.rank_key: the score in N, or the
+    validness of a binary model, whose score_n is NaN)."""
     out = MarkerArray()
     out.markers.append(Marker(header=header, action=Marker.DELETEALL))
-    top = max((g.score_n for g in grasps), default=0.0)
+    top = max((g.rank_key for g in grasps), default=0.0)
     points = [Point(x=0.0, y=float(y), z=float(z)) for segment in OUTLINE for (y, z) in segment]
     for rank, g in enumerate(grasps):
         m = Marker(header=header, ns="grasps", id=rank, type=Marker.LINE_LIST, action=Marker.ADD)
         m.pose = pose_msg_from_matrix(g.pose)
         m.scale.x = line_width_m
-        m.color = score_colour(g.score_n, top)
+        m.color = rank_colour(g.rank_key, top)
         m.points = points
         out.markers.append(m)
     return out

@@ -106,8 +106,8 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
     nobody simulated: "label" is a lower bound on picks that hold, "negative" an upper
     bound on none of them."""
     if rankings is None:
-        rankings = (["validness"] if model_file.training_target(metadata) == "binary"
-                    else ["score", "expected_score", "validness"])
+        rankings = (["score", "expected_score", "validness"] if model_file.has_score(metadata)
+                    else ["validness"])
     out = {r: {k: {"label": 0, "negative": 0, "neither": 0, "holds_kg": {str(m): 0 for m in HOLDS_KG}}
                for k in TOP_K} for r in rankings}
     for path in scene_files:
@@ -116,6 +116,7 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
         for r in rankings:
             grasps = detect_grasps(model, scene["tsdf"], voxel_size_m,
                                    options=DetectionOptions(max_grasps=max(TOP_K), rank_by=r,
+                                                           has_score=model_file.has_score(metadata),
                                                            validness_threshold=validness_threshold))
             for k in TOP_K:
                 for g in grasps[:k]:
