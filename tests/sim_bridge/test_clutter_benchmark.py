@@ -14,6 +14,7 @@ from gravgrasp_detector.perception import model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
 from sim_bridge.benchmark import clearing, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
+from sim_bridge.benchmark.methods import gravgrasp as gravgrasp_method
 from sim_bridge.physics.objects import ObjectError
 
 pytestmark = pytest.mark.drake
@@ -235,7 +236,7 @@ def test_bad_mesh_dir_is_one_clear_error(tmp_path, capsys):
     code = cb.main(["--meshes", str(tmp_path / "nope"), "--model", f"x={tmp_path}/m.pt", "--methods", "",
                     "--out", str(tmp_path / "o")])
     assert code == 2  # the model is missing too: that message comes first
-    assert "no method has a model file" in capsys.readouterr().err
+    assert "no method has its files" in capsys.readouterr().err
     save_test_model(tmp_path / "m.pt")
     code = cb.main(["--meshes", str(tmp_path / "nope"), "--model", f"x={tmp_path}/m.pt", "--methods", "",
                     "--out", str(tmp_path / "o"), "--workers", "0"])
@@ -276,8 +277,8 @@ def test_a_ranking_variant_runs_its_base_methods_model_under_its_own_ranking(tmp
     grid[10:30, 10:30, 6:12] = 0.3
     grid[10:30, 10:30, 12] = 0.5
     p = protocol.Protocol(validness_threshold=0.0)
-    by_score = bench_rounds.make_detector(model, meta, p)((grid, 0.0075, np.zeros(3)))
-    by_expected = bench_rounds.make_detector(model, meta, p, "expected_score")((grid, 0.0075, np.zeros(3)))
+    by_score = gravgrasp_method.make_detect(model, meta, p)((grid, 0.0075, np.zeros(3)))
+    by_expected = gravgrasp_method.make_detect(model, meta, p, "expected_score")((grid, 0.0075, np.zeros(3)))
     keys = [g.validness * g.score_n for g in by_expected]
     assert keys == sorted(keys, reverse=True) and [g.score_n for g in by_score] == sorted(
         (g.score_n for g in by_score), reverse=True)
@@ -304,7 +305,7 @@ def test_binary_model_ranks_by_validness(tmp_path):
     grid[10:30, 10:30, 6:12] = 0.3
     grid[10:30, 10:30, 12] = 0.5
     # a min-score threshold in N must not apply to probabilities
-    detect = bench_rounds.make_detector(model, meta, protocol.Protocol(validness_threshold=0.0, min_score_n=1e6))
+    detect = gravgrasp_method.make_detect(model, meta, protocol.Protocol(validness_threshold=0.0, min_score_n=1e6))
     grasps = detect((grid, 0.0075, np.zeros(3)))
     assert grasps and all(0.0 <= g.score_n <= 1.0 for g in grasps)
     assert [g.score_n for g in grasps] == sorted((g.score_n for g in grasps), reverse=True)

@@ -22,7 +22,8 @@ import sys
 from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
-from .protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
+from .methods import method_named
+from .protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
 from .rounds import RoundTask, run_round
 
 # (results dir, method, weight kg, scene): short rounds of the held-out tuning meshes,
@@ -41,7 +42,7 @@ def tasks(settings: str, rounds=ROUNDS, models_dir="models") -> list:
         d = pathlib.Path(results_dir)
         config = json.loads((d / "config.json").read_text())
         scene = json.loads((d / "scenes" / f"{sid}.json").read_text())
-        model = pathlib.Path(models_dir) / METHODS[method]
+        model = method_named(method).default_path(models_dir)
         for name in ("v4", settings):
             protocol = with_execution(Protocol(**config["protocol"]), name)
             out.append((name, RoundTask(method, str(model), file_sha256(model), float(mass_kg), scene, protocol)))

@@ -29,12 +29,14 @@ Protocol (one *round* = one method, one object weight, one scene):
   Wilson intervals; each method's SR against Binary's at the same weight with a
   two-proportion z test (printed `p_<method>_vs_binary_<kg>=`, results.md).
 
-Methods are model files (`METHODS`); a missing one is skipped with a note; a ranking
-variant (`RANKING_VARIANTS`, named in --methods only) runs its base method's model under
-another rank_by, e.g. `ours_expected` ranks by validness x score. The rotation
-ablation's extra models run at `ABLATION_*WEIGHTS_KG` only. A model
-trained with `--target binary` ranks by validness (a success probability) and no
-min-score-in-N threshold applies to it.
+Methods are detectors with the hand that executes them (benchmark.methods.METHODS): the
+project's model files on the 2F-85 and `vgn`, VGN's published weights on the Panda hand
+(from the baselines directory, `--baselines DIR`); a method whose file is missing is
+skipped with a note saying where to get it. `ours_expected` (named in --methods only)
+runs Ours' model ranked by validness x score. The rotation ablation's extra models run at
+`ABLATION_*WEIGHTS_KG` only. A model trained with `--target binary` ranks by validness (a
+success probability) and no min-score-in-N threshold applies to it. Each round record
+names its method's hand, as config.json does ("hands").
 
 Engineering: one task per round through parallel.run_tasks (process pool or Dask);
 each round's result is written atomically to rounds/<method>/<weight>/<scene>.json
@@ -51,10 +53,11 @@ import time
 from concurrent.futures.process import BrokenProcessPool
 
 from ..datagen.object_sources import read_name_list
+from ..physics import baseline_files
 from ..physics.objects import ObjectError
-from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, METHODS, QUICK_ABLATION_WEIGHTS_KG,
-                       QUICK_WEIGHTS_KG, RANKING_VARIANTS, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol,
-                       weight_key)
+from .methods import DEFAULT_METHODS, METHODS
+from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
+                       QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, weight_key)
 from .report import compare_to
 from .rounds import resolve_methods, run_benchmark
 
@@ -80,10 +83,13 @@ def main(argv=None) -> int:
     p.add_argument("--weights", default=None, help="comma-separated kg; default 0.1,0.3,0.5,0.8,1.0,1.5")
     p.add_argument("--ablation-weights", default=None,
                    help=f"weights of {', '.join(ABLATION_METHODS)}; default 0.5 (quick 0.1), or --weights when given")
-    p.add_argument("--methods", default=",".join(METHODS),
-                   help=f"comma-separated, of {', '.join(METHODS)} (default: these), or the ranking variants "
-                        f"{', '.join(RANKING_VARIANTS)} (a method's model under another rank_by)")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                   help=f"comma-separated, of {', '.join(METHODS)}; default {','.join(DEFAULT_METHODS)} "
+                        "(benchmark.methods)")
     p.add_argument("--models-dir", default="models")
+    p.add_argument("--baselines", default=None, metavar="DIR",
+                   help="the baselines' files (VGN's weights, the Panda hand); default: GRAVGRASP_BASELINES, "
+                        f"else {baseline_files.baselines_dir()}")
     p.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                    help="a model file for a method (also a new method name)")
     p.add_argument("--meshes", default=None, help="URDF/OBJ directory instead of procedural objects")
@@ -145,12 +151,13 @@ def main(argv=None) -> int:
         overrides[name] = path
     names = [m for m in args.methods.split(",") if m] + [m for m in overrides if m not in args.methods.split(",")]
     try:
-        methods = resolve_methods(names, args.models_dir, overrides)
+        methods = resolve_methods(names, args.models_dir, overrides, baselines_dir=args.baselines)
     except ValueError as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2
     if not methods:
-        print("benchmark: no method has a model file: train them (models/) or pass --model NAME=PATH", file=sys.stderr)
+        print("benchmark: no method has its files (see the notes above): train the models (models/), pass "
+              "--model NAME=PATH, or --baselines DIR for the baselines", file=sys.stderr)
         return 2
     if not (math.isfinite(args.close_on_contact_within_m) and args.close_on_contact_within_m >= 0):
         print(f"benchmark: --close-on-contact-within-m {args.close_on_contact_within_m}: give a distance >= 0 [m] "
@@ -166,7 +173,8 @@ def main(argv=None) -> int:
     try:
         rows = run_benchmark(out, methods, weights, n_scenes, args.seed, args.meshes, protocol,
                              args.workers, args.scheduler, progress=not args.no_progress,
-                             ablation_weights_kg=ablation, only_meshes=only, report_only=args.report)
+                             ablation_weights_kg=ablation, only_meshes=only, report_only=args.report,
+                             baselines_dir=args.baselines)
     except (ObjectError, ValueError) as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2

@@ -1,5 +1,6 @@
-"""The clutter-removal protocol (paper Sec. V-B): the methods and weights, the `Protocol`
-settings, the object pool and scenes. The round's rules are `clearing.clear_table`."""
+"""The clutter-removal protocol (paper Sec. V-B): the weights, the `Protocol` settings, the
+object pool and scenes, the same for every method (the methods: benchmark.methods). The
+round's rules are `clearing.clear_table`."""
 
 from __future__ import annotations
 
@@ -15,24 +16,10 @@ from ..physics.scenes import ARRANGEMENTS, arrange
 from ..world import BARE_MESH_DENSITY_KG_M3, STROKE_M
 from .clearing import ATTEMPTS_PER_OBJECT
 
-# method -> model file name in --models-dir (the lead's training runs write these)
-METHODS = {
-    "ours": "gravgrasp.pt",
-    "ours_precision": "gravgrasp_precision_only.pt",
-    "binary": "gravgrasp_binary.pt",
-    "ours_ey_ez": "gravgrasp_ey_ez.pt",
-    "ours_quat": "gravgrasp_quat.pt",
-}
-# method -> (the method whose model it runs, detection's rank_by): one model, another
-# deployment rule; not run unless named in --methods. "ours_expected" ranks Ours' grasps
-# by validness x score instead of the paper's score among valid voxels.
-RANKING_VARIANTS = {
-    "ours_expected": ("ours", "expected_score"),
-}
 FULL_WEIGHTS_KG = (0.1, 0.3, 0.5, 0.8, 1.0, 1.5)
 QUICK_WEIGHTS_KG = (0.1, 1.5)
 # The rotation ablation is one table in the paper (Sec. V-C), not a weight sweep: its two
-# extra models run at these weights only (`ours` is its e_x-e_z arm), which keeps the
+# extra models (methods.METHODS) run at these weights only (`ours` is its e_x-e_z arm), which keeps the
 # full run at 20 rounds per scene instead of 30.
 ABLATION_METHODS = ("ours_ey_ez", "ours_quat")
 FULL_ABLATION_WEIGHTS_KG = (0.5,)

@@ -34,7 +34,8 @@ from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP, surface_
 from gravgrasp_detector.perception.model_file import file_sha256
 
 from .clearing import clear_table
-from .protocol import METHODS, RANKING_VARIANTS, Protocol, weight_key
+from .methods import METHODS
+from .protocol import Protocol, weight_key
 from .rounds import RoundTask, make_cell
 
 MESH_SAMPLES = 4000
@@ -93,11 +94,10 @@ def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_at
     if not round_file.is_file():
         raise ValueError(f"no round {round_file}: see {results_dir / 'rounds'} for the methods, weights and scenes run")
     recorded = json.loads(round_file.read_text())
-    base = RANKING_VARIANTS[method][0] if method in RANKING_VARIANTS else method
     if model_path is None:
-        if base not in METHODS:
-            raise ValueError(f"method {method!r} has no file in models/: pass --model")
-        model_path = pathlib.Path("models") / METHODS[base]
+        if method not in METHODS:
+            raise ValueError(f"method {method!r} has no registered file: pass --model")
+        model_path = METHODS[method].default_path()
     model_path = pathlib.Path(model_path)
     if not model_path.is_file():
         raise ValueError(f"model file {model_path} not found")

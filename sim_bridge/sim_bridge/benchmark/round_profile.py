@@ -25,7 +25,8 @@ import time
 import torch
 
 from .clearing import clear_table
-from .protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
+from .methods import method_named
+from .protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
 from .rounds import RoundTask, make_cell
 
 
@@ -69,7 +70,7 @@ def profile_round(results_dir, method, mass_kg, scene_id, execution=None, models
     if execution:
         protocol = with_execution(protocol, execution)
     scene = json.loads((d / "scenes" / f"{scene_id}.json").read_text())
-    task = RoundTask(method, str(pathlib.Path(models_dir) / METHODS[method]), "", float(mass_kg), scene, protocol)
+    task = RoundTask(method, str(method_named(method).locate(models_dir)), "", float(mass_kg), scene, protocol)
     torch.set_num_threads(1)
     t0 = time.process_time()
     cell, _ = make_cell(task)

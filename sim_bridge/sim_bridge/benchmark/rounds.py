@@ -1,5 +1,6 @@
-"""One benchmark round as a worker task (detection per method, `run_round`) and the run
-over methods x weights x scenes (`run_benchmark`): resumable, one atomic JSON per round."""
+"""One benchmark round as a worker task (the method's detector and hand, `run_round`) and
+the run over methods x weights x scenes (`run_benchmark`): resumable, one atomic JSON per
+round. The methods are benchmark.methods.METHODS."""
 
 from __future__ import annotations
 
@@ -11,75 +12,56 @@ import pathlib
 import time
 from concurrent.futures.process import BrokenProcessPool
 
-import numpy as np
 import torch
 
-from gravgrasp_detector.perception.detection import DetectionOptions, detect_grasps
-from gravgrasp_detector.perception.model_file import check_volume, file_sha256, load_model, ranking, training_target
-from gravgrasp_detector.perception.tsdf import TSDFVolume
+from gravgrasp_detector.perception.model_file import file_sha256
 
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
+from ..world import WorldSettings
 from .clearing import clear_table
-from .protocol import (ABLATION_METHODS, LEGACY_EXECUTION, MAX_POOLS, METHODS, OBJECTS_PER_SCENE, PROCEDURAL_SEED,
-                       RANKING_VARIANTS, SCHEMA_VERSION, Protocol, execution_name, execution_of,
+from .methods import MethodFileMissing, method_named, method_of
+from .protocol import (ABLATION_METHODS, LEGACY_EXECUTION, MAX_POOLS, OBJECTS_PER_SCENE, PROCEDURAL_SEED,
+                       SCHEMA_VERSION, Protocol, execution_name, execution_of,
                        SceneDrawTask, make_scene, object_pool, scene_ids, weight_key)
 from .report import write_outputs
 from .sim_cell import SimCell
-
-# detection per method
-
-
-def make_detector(model, metadata, protocol: Protocol, rank_by=None):
-    """tsdf tuple -> ranked grasps. Score methods rank by the gravity-rejection score [N]
-    with min_score_n; binary methods rank by validness (their success probability), as the
-    detect node serves them; `rank_by` overrides that (RANKING_VARIANTS)."""
-    options = DetectionOptions(validness_threshold=protocol.validness_threshold, min_score_n=protocol.min_score_n,
-                               max_grasps=protocol.max_grasps, rank_by=rank_by or ranking(metadata),
-                               clear_hand=protocol.clear_hand)
-
-    def detect(tsdf):
-        grid, voxel_size_m, origin = tsdf
-        if not np.any(grid):
-            return []
-        return detect_grasps(model, grid, voxel_size_m, origin, options)
-    return detect
-
 
 # one round (a worker task)
 
 
 @dataclasses.dataclass(frozen=True)
 class RoundTask:
-    method: str
-    model_path: str
+    method: str  # a methods.METHODS name, or one given by --model NAME=PATH
+    model_path: str  # the method's file (methods.Method.locate)
     model_sha256: str
     mass_kg: float
     scene: dict
     protocol: Protocol
+    baselines_dir: str = ""  # the Panda hand's files ("": physics.baseline_files' default)
 
 
 def make_cell(task: RoundTask) -> tuple:
-    """(SimCell of the round's scene and weight with its method's detector, model metadata)."""
-    model, metadata = load_model(task.model_path)
-    volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
-    check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
-    rank_by = RANKING_VARIANTS[task.method][1] if task.method in RANKING_VARIANTS else None
-    detect = make_detector(model, metadata, task.protocol, rank_by)
-    return SimCell(task.scene, task.mass_kg, task.protocol, volume, detect), metadata
+    """(SimCell of the round's scene and weight with its method's detector and hand,
+    the methods.Detector)."""
+    method = method_of(task.method, task.model_path)
+    detector = method.make(task.model_path, task.protocol)
+    cell = SimCell(task.scene, task.mass_kg, task.protocol, detector.volume, detector.detect, method.hand,
+                   task.baselines_dir)
+    return cell, detector
 
 
 def run_round(task: RoundTask) -> dict:
     torch.set_num_threads(1)  # one core per round: the pool gives the parallelism
     t0 = time.process_time()
-    cell, metadata = make_cell(task)
+    cell, detector = make_cell(task)
     settle_s = cell.settle()
     left_before_start = cell.remove_fallen()  # not counted: no method could have grasped them
     names = cell.objects_on_table()
     n_objects = len(names)
     record = clear_table(cell, n_objects, task.protocol.attempts_per_object)
-    return {"schema_version": SCHEMA_VERSION, "method": task.method, "model_sha256": task.model_sha256,
-            "target": training_target(metadata), "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
+    return {"schema_version": SCHEMA_VERSION, "method": task.method, "hand": cell.hand,
+            "model_sha256": task.model_sha256, "target": detector.target, "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
             "objects": names, "n_objects": n_objects, "left_before_start": left_before_start,
             "settle_s": round(settle_s, 2), **record,
             "successes": sum(a["success"] for a in record["attempts"]),
@@ -92,20 +74,26 @@ def run_round(task: RoundTask) -> dict:
 
 
 
-def resolve_methods(names, models_dir, overrides=None, note=print):
-    """{method: model path} of the methods whose model file exists; a note per missing one."""
+def resolve_methods(names, models_dir, overrides=None, note=print, baselines_dir=None):
+    """{method: its file's path} of the methods whose files (and hand's files) are there;
+    a note per missing one. ValueError for a name that is neither registered
+    (methods.METHODS) nor given a file in `overrides` ({name: path}, --model NAME=PATH)."""
     overrides = overrides or {}
     found = {}
     for name in names:
-        base = RANKING_VARIANTS[name][0] if name in RANKING_VARIANTS else name  # a variant runs its base's model
-        if base not in METHODS and name not in overrides:
-            raise ValueError(f"unknown method {name!r}: use {', '.join([*METHODS, *RANKING_VARIANTS])} "
-                             "(or --model NAME=PATH)")
-        path = pathlib.Path(overrides.get(name) or overrides.get(base) or pathlib.Path(models_dir) / METHODS[base])
-        if path.is_file():
-            found[name] = str(path.resolve())
-        else:
-            note(f"benchmark: skipping {name}: model file {path} not found")
+        if name not in overrides:
+            method_named(name)  # one error naming the known methods
+        method = method_of(name, overrides.get(name, ""))
+        try:
+            path = method.locate(models_dir, baselines_dir, overrides.get(name) or overrides.get(method.file_of))
+            WorldSettings(hand=method.hand, baselines_dir=baselines_dir or "").validate()  # the hand's files
+        except MethodFileMissing as e:
+            note(f"benchmark: skipping {name}: {e}")
+            continue
+        except FileNotFoundError as e:  # the hand's files (physics.baseline_files)
+            note(f"benchmark: skipping {name}: its {method.hand} hand: {e}")
+            continue
+        found[name] = str(path)
     return found
 
 
@@ -117,9 +105,10 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
 
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
-                  ablation_weights_kg=None, only_meshes=None, report_only=False) -> list:
+                  ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
-    `methods`: {name: model path}; ABLATION_METHODS run at `ablation_weights_kg` if given;
+    `methods`: {name: its file's path} (resolve_methods); `baselines_dir`: where the
+    Panda hand's files are (None: physics.baseline_files' default); ABLATION_METHODS run at `ablation_weights_kg` if given;
     `only_meshes`: names of the meshes in `meshes_dir` to draw scenes from (None: all);
     `report_only`: run nothing, write the outputs of the rounds finished so far (an interim
     look at a run that is still going, in the same directory)."""
@@ -137,11 +126,20 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
             del config["protocol"][off_by_default]
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
+    # The hand of each method run there: a method's, not the run's setting, so it is kept
+    # apart from the comparison (methods may join a run later; runs from before it have none).
+    hands = {m: method_of(m, p).hand for m, p in methods.items()}
     config_path = out / "config.json"
     if report_only and not config_path.exists():
         raise ValueError(f"{out} holds no benchmark run (no config.json): give the --out of a run")
     if config_path.exists():
         previous = json.loads(config_path.read_text())
+        ran_on = previous.pop("hands", {})
+        for m in hands:
+            if ran_on.get(m, hands[m]) != hands[m]:
+                raise ValueError(f"{out}: {m} ran there on the {ran_on[m]} hand, now it runs on the {hands[m]} "
+                                 "hand: use another --out")
+        hands = {**ran_on, **hands}
         previous["protocol"].update(execution_of(previous["protocol"]))  # written before they were recorded
         if previous != config and {**previous, "protocol": {**previous["protocol"], **execution_of(config["protocol"])}} == config:
             raise ValueError(f"{out} was run under execution settings {execution_name(previous['protocol'])}, not "
@@ -156,7 +154,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         listed = out / "excluded_objects.json"  # absent only if the run was stopped within its first second
         excluded = json.loads(listed.read_text()) if listed.exists() else []
         return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
-    atomic_files.save_json(config_path, config)
+    atomic_files.save_json(config_path, {**config, "hands": hands})
 
     usable, excluded = object_pool(meshes_dir, only=only)
     atomic_files.save_json(out / "excluded_objects.json", list(excluded))
@@ -197,7 +195,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
                 if pending:
                     run_tasks(ex, make_scene, pending, on_scene, desc="scenes", progress=progress)
                 # Scene-major order: a run cut short has every method on the same scenes.
-                tasks = [RoundTask(m, path, shas[m], w, scenes[sid], protocol)
+                tasks = [RoundTask(m, path, shas[m], w, scenes[sid], protocol, baselines_dir or "")
                          for sid in ids for w in sorted({w for ws in plan.values() for w in ws})
                          for m, path in methods.items() if w in plan[m] and not done(m, w, sid)]
                 errors.clear()

@@ -1,6 +1,7 @@
 """The simulated cell the benchmark runs a round in: the grasp executor's arm and gripper
-adapters over a SimWorld in simulated time (`SimArm`, `SimGripper`), and `SimCell`, which
-clearing.clear_table drives."""
+adapters over a SimWorld in simulated time (`SimArm`, `SimGripper`, `PandaSimGripper`),
+and `SimCell`, which clearing.clear_table drives, with the hand its method's grasps are
+for (physics.hands; the executor gets that hand's opening and boxes, `HAND_GEOMETRY`)."""
 
 from __future__ import annotations
 
@@ -8,14 +9,26 @@ import numpy as np
 
 from gravgrasp_detector.execution.executor import (Abort, ArmMotion, ExecutionLimits, GraspExecutor, check_limits,
                                                    plan_poses, scene_collision)
+from gravgrasp_detector.perception.hand_clearance import ROBOTIQ_2F85, HandGeometry
 from robotiq_driver.gripper_client import GripperTimeout
 from robotiq_driver.gripper_registers import ActivationStatus, GripperScale, GripperState, ObjectStatus
 
 from ..datagen.object_sources import ObjectSource
+from ..physics import panda_hand
 from ..physics.contact import SimSettings
-from ..world import STROKE_M, SceneConfig, SimWorld, WorldSettings
+from ..physics.hands import HANDS, hand_spec
+from ..world import SceneConfig, SimWorld, WorldSettings
 from .clearing import Refused
 from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
+
+# What the executor knows of each hand (physics.hands' names): its opening and the open
+# hand's boxes for the clearance check. The 2F-85's are robotiq_driver's, as the execute
+# node's; the Panda's are physics.panda_hand's (checked against its collision meshes).
+HAND_GEOMETRY = {
+    "2f85": ROBOTIQ_2F85,
+    "panda": HandGeometry("panda", panda_hand.MAX_OPENING_M, panda_hand.HAND_PARTS, panda_hand.OPEN_HAND_BOXES_TCP),
+}
+assert set(HAND_GEOMETRY) == set(HANDS), "every hand of physics.hands needs its executor geometry here"
 
 # the simulated cell: executor adapters in simulated time
 
@@ -71,10 +84,40 @@ class SimGripper:
         self.world.hold_fingers()
 
 
+class PandaSimGripper(SimGripper):
+    """The Panda hand's gripper for the executor. The Panda reports only where its fingers
+    are, so "stopped on an object" (gOBJ 2) is the world's parallel-grip verdict: fingers
+    stopped clearly short of closed with an object touching both (world.parallel_grip).
+    Fingers stopped on something else (the table, one finger on a neighbour) read "at
+    position", and the executor's judge says the fingers did not stop on an object.
+    Closing on nothing ends at 0 mm, where the executor's calibration then sits."""
+
+    def __init__(self, world):
+        super().__init__(world)
+        self.scale = GripperScale(stroke_m=panda_hand.MAX_OPENING_M)
+
+    def read_state(self):
+        width, state = self.world.finger_status()
+        if state == "moving":
+            obj = ObjectStatus.MOVING
+        elif self._closing:
+            obj = ObjectStatus.CONTACT_CLOSING if self.world.parallel_grip().held else ObjectStatus.AT_POSITION
+        else:
+            obj = ObjectStatus.CONTACT_OPENING if state == "blocked" else ObjectStatus.AT_POSITION
+        return GripperState(activated=True, go=True, activation_status=ActivationStatus.ACTIVATED,
+                            object_status=obj, position=self.scale.width_to_counts(min(width, self.scale.stroke_m)))
+
+
+GRIPPERS = {"2f85": SimGripper, "panda": PandaSimGripper}  # the executor's gripper per hand
+
+
 class SimCell:
     """One scene in Drake with the executor; what `clear_table` drives. `detect(tsdf)` ->
-    ranked grasps (best first)."""
-    def __init__(self, scene: dict, mass_kg: float, protocol: Protocol, volume, detect):
+    ranked grasps (best first) for `hand` (physics.hands: "2f85" or "panda", whose files
+    come from `baselines_dir`, "" = physics.baseline_files' default)."""
+    def __init__(self, scene: dict, mass_kg: float, protocol: Protocol, volume, detect, hand: str = "2f85",
+                 baselines_dir: str = ""):
+        self.hand = hand_spec(hand).name  # one clear error for a hand that does not exist
 
         objects = tuple((ObjectSource(**o["source"]).load(), np.asarray(o["X_task_object"]))
                         for o in scene["objects"])
@@ -82,7 +125,8 @@ class SimCell:
                                                      grip_force_n=protocol.grip_force_n,
                                                      relaxation_time_s=protocol.relaxation_time_s),
                                  max_speed_mps=protocol.free_space_speed_mps,
-                                 freeze_resting_objects=protocol.freeze_resting_objects)
+                                 freeze_resting_objects=protocol.freeze_resting_objects,
+                                 hand=hand, baselines_dir=baselines_dir or "")
         self.world = SimWorld(SceneConfig(objects=objects, object_mass_kg=mass_kg,
                                           arrangement=scene["arrangement"]), settings)
         self.protocol, self.volume, self._detect = protocol, volume, detect
@@ -92,8 +136,10 @@ class SimCell:
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
                                       max_speed_mps=protocol.free_space_speed_mps,
                                       lift_speed_mps=protocol.lift_speed_mps,
-                                      close_on_contact_within_m=protocol.close_on_contact_within_m)
-        self.executor = GraspExecutor(SimArm(self.world), lambda: SimGripper(self.world), self.limits,
+                                      close_on_contact_within_m=protocol.close_on_contact_within_m,
+                                      hand=HAND_GEOMETRY[hand])
+        gripper = GRIPPERS[hand]
+        self.executor = GraspExecutor(SimArm(self.world), lambda: gripper(self.world), self.limits,
                                       reachability=None, log=lambda *_: None)
         self.home = self.world.tcp_pose()
         self._fallen = set()
@@ -190,7 +236,7 @@ class SimCell:
         for name in lifted if outcome == "success" else []:
             self.world.remove_object(name)
         # Open where the hand is (anything still held drops back), then home.
-        self.world.command_fingers(STROKE_M, 0.1, p.grip_force_n)
+        self.world.command_fingers(self.limits.hand.open_width_m, 0.1, p.grip_force_n)
         self.world.advance(0.6)
         if not self.world.move_tcp(self.home, self.limits.max_speed_mps, 30.0)[0]:
             up = self.world.tcp_pose()

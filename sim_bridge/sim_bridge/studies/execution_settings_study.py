@@ -37,7 +37,8 @@ from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..benchmark.clearing import Refused, clear_table
-from ..benchmark.protocol import EXECUTION_SETTINGS, METHODS, Protocol, weight_key, with_execution
+from ..benchmark.methods import method_named
+from ..benchmark.protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
 from ..benchmark.rounds import RoundTask, make_cell
 from ..parallel import make_executor, run_tasks
 
@@ -143,7 +144,7 @@ def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models") -> list:
         sid = scenes[k]
         d = pathlib.Path(results_dir)
         config = json.loads((d / "config.json").read_text())
-        model = pathlib.Path(models_dir) / METHODS[method]
+        model = method_named(method).default_path(models_dir)
         sha = file_sha256(model)
         rf = d / "rounds" / method / weight_key(mass_kg) / f"{sid}.json"
         if not rf.is_file():

@@ -44,7 +44,8 @@ from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..benchmark.clearing import Refused
 from ..benchmark.clutter_benchmark import parse_weights
-from ..benchmark.protocol import METHODS, RANKING_VARIANTS, Protocol, weight_key
+from ..benchmark.methods import METHODS
+from ..benchmark.protocol import Protocol, weight_key
 from ..benchmark.report import outcome_class
 from ..benchmark.rounds import RoundTask, make_cell
 from ..parallel import make_executor, run_tasks
@@ -204,10 +205,9 @@ def main(argv=None) -> int:
         return err(f"--top {args.top}: give at least 1")
     if not (bench / "config.json").is_file() or not sorted((bench / "scenes").glob("*.json")):
         return err(f"{bench} holds no benchmark run (config.json and scenes/*.json): give a benchmark's --out")
-    base = RANKING_VARIANTS.get(args.method, (args.method,))[0]
-    if base not in METHODS:
-        return err(f"unknown --method {args.method!r}: use {', '.join([*METHODS, *RANKING_VARIANTS])}")
-    model = pathlib.Path(args.model or pathlib.Path("models") / METHODS[base])
+    if args.method not in METHODS:
+        return err(f"unknown --method {args.method!r}: use {', '.join(METHODS)}")
+    model = pathlib.Path(args.model or METHODS[args.method].default_path())
     if not model.is_file():
         return err(f"model file {model} not found: give --model")
     protocol = Protocol(**json.loads((bench / "config.json").read_text())["protocol"])

@@ -1,4 +1,51 @@
-"""Detectors besides the project's own model files: the paper's published baselines, one
-module each, turning a view's TSDF into ranked grasps for the benchmark. Their files
-(other people's weights) are read from the baselines directory outside the project's
-tree (physics.baseline_files), never copied into it."""
+"""The benchmark's methods, by name. A method is a detector (the TSDF of a view -> grasps,
+best first) and the hand that executes them (`method.Method`); the round, its SR/CR
+rules, the protocol and the reports are the same for every method.
+
+Adding a method: a module here whose `make_detector(path, protocol)` returns a
+`method.Detector`, and one `Method` entry in METHODS (its hand, and its file: under the
+models directory, or under the baselines directory for other people's weights, which
+the project never copies into its tree: physics.baseline_files)."""
+
+from __future__ import annotations
+
+from . import gravgrasp, vgn
+from .method import BASELINES, Detector, Method, MethodFileMissing
+
+__all__ = ["METHODS", "Detector", "Method", "MethodFileMissing", "method_named", "method_of"]
+
+METHODS = {m.name: m for m in (
+    # the project's models (the lead's training runs write these files into models/)
+    gravgrasp.model_method("ours", "gravgrasp.pt", "Ours: the gravity-rejection score [N]"),
+    gravgrasp.model_method("ours_precision", "gravgrasp_precision_only.pt", "Ours trained on precision grasps only"),
+    gravgrasp.model_method("binary", "gravgrasp_binary.pt", "the same network trained on binary success"),
+    gravgrasp.model_method("ours_ey_ez", "gravgrasp_ey_ez.pt", "rotation ablation: e_y-e_z columns"),
+    gravgrasp.model_method("ours_quat", "gravgrasp_quat.pt", "rotation ablation: a quaternion"),
+    # a ranking variant: Ours' model, its grasps ranked by validness x score instead of the
+    # paper's score among valid voxels; not run unless named in --methods
+    gravgrasp.model_method("ours_expected", "gravgrasp.pt", "Ours ranked by validness x score",
+                           rank_by="expected_score", file_of="ours"),
+    # the baselines, with their published weights, on the hand they were made for
+    Method("vgn", "panda", vgn.make_detector, vgn.MODEL_FILE, BASELINES,
+           "VGN (Breyer et al. 2020), published weights, Panda hand"),
+)}
+# run by default (clutter_benchmark --methods): the project's models; variants and
+# baselines when named
+DEFAULT_METHODS = ("ours", "ours_precision", "binary", "ours_ey_ez", "ours_quat")
+
+
+def method_named(name: str) -> Method:
+    """The registered method `name`; ValueError naming the known ones otherwise."""
+    try:
+        return METHODS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown method {name!r}: use one of {', '.join(METHODS)} "
+                         "(or --model NAME=PATH for another model file)") from None
+
+
+def method_of(name: str, model_path: str = "") -> Method:
+    """The method a round of `name` runs: the registered one, or, for a name given only by
+    --model NAME=PATH (`model_path`), that model file on the 2F-85."""
+    if name not in METHODS and model_path:
+        return gravgrasp.model_method(name)
+    return method_named(name)

@@ -45,10 +45,13 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 from torch import nn
 
-from gravgrasp_detector.perception.detection import Grasp
+from gravgrasp_detector.perception import hand_clearance
+from gravgrasp_detector.perception.detection import DetectionOptions, Grasp
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 from ...physics.baseline_files import SOURCES, BaselineFileMissing, baseline_file
+from ..sim_cell import HAND_GEOMETRY
+from .method import Detector
 
 MODEL_FILE = "vgn/vgn_conv.pth"  # in the baselines directory
 SIZE_M, RESOLUTION, TRUNCATION_VOXELS = 0.30, 40, 4
@@ -244,3 +247,30 @@ def make_vgn_detector(net: VGNNet, options: VGNOptions = VGNOptions()):
         quality = mask_quality(grid, quality, width_voxels, options)
         return select_grasps(quality, quaternions, width_voxels, VOXEL_SIZE_M, T_task_grid, options)
     return detect
+
+
+# the benchmark's method (methods.METHODS["vgn"])
+
+
+def make_detector(path, protocol) -> Detector:
+    """VGN with the weights at `path` as the benchmark's Detector, under the protocol's
+    max_grasps and, when on, its clear_hand (the Panda's open hand swept from the
+    pre-grasp, as detection's step 6 does for the 2F-85). The protocol's
+    validness_threshold and min_score_n are the project's detection's: VGN keeps its own
+    0.90 quality threshold. Its quality is a success probability: target "binary"."""
+    net = load_vgn(path)
+    detect_all = make_vgn_detector(net, VGNOptions(max_grasps=None if protocol.clear_hand else protocol.max_grasps))
+    if not protocol.clear_hand:
+        return Detector(detect_all, vgn_volume(), "binary")
+    hand = HAND_GEOMETRY["panda"]
+
+    def detect(tsdf):
+        grasps = detect_all(tsdf)
+        if not grasps:
+            return grasps
+        grid, voxel_size_m, origin = tsdf
+        points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m, vgn_input(tsdf)[1][:3, 3])
+        hit = hand_clearance.hands_collide(np.array([g.pose for g in grasps]), points, voxel_size_m,
+                                           DetectionOptions.pregrasp_distance_m, hand)
+        return [g for g, h in zip(grasps, hit) if not h][:protocol.max_grasps]
+    return Detector(detect, vgn_volume(), "binary")

@@ -1,0 +1,71 @@
+"""What a benchmark method is: a detector (the TSDF of a view -> grasps, best first) made
+from one file, and the hand that executes its grasps. The registry is methods.METHODS."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+from typing import Callable
+
+from ...physics import baseline_files
+
+MODELS, BASELINES = "models", "baselines"  # where a method's file lives
+
+
+class MethodFileMissing(FileNotFoundError):
+    """A method's file is not there (the message says which and where to get it)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Detector:
+    """A method made ready for one cell: `detect((grid, voxel_size_m, origin))` -> grasps
+    best first (each with `pose` T_task_tcp of the method's hand, `score_n`, `validness`),
+    reading views integrated into `volume` (a TSDFVolume of its own)."""
+    detect: Callable
+    volume: object
+    # what its scores are, for the round record and the report: a model file's training
+    # target ("gravity-score": newtons), "binary" (a success probability)
+    target: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """One entry of methods.METHODS. `make(path, protocol)` -> Detector, `path` being the
+    method's file (the project's model file, a baseline's weights): its sha256 names the
+    detector in the round records, so a rerun redoes the rounds of a changed file."""
+    name: str
+    hand: str  # physics.hands: "2f85" (the paper's) or "panda" (the baselines')
+    make: Callable
+    file: str  # under the models directory, or under the baselines directory (`where`)
+    where: str = MODELS
+    summary: str = ""
+    # A variant runs another method's file ("ours_expected": Ours' model ranked otherwise):
+    # that method's --model NAME=PATH moves it along.
+    file_of: str = ""
+
+    def __post_init__(self):
+        if self.where not in (MODELS, BASELINES):
+            raise ValueError(f"method {self.name!r}: where={self.where!r}, use {MODELS!r} or {BASELINES!r}")
+
+    def default_path(self, models_dir: str | os.PathLike = "models", baselines_dir=None) -> pathlib.Path:
+        """Where its file is by default (not checked)."""
+        if self.where == MODELS:
+            return pathlib.Path(models_dir) / self.file
+        return baseline_files.baselines_dir(baselines_dir) / self.file
+
+    def locate(self, models_dir: str | os.PathLike = "models", baselines_dir=None, override=None) -> pathlib.Path:
+        """Its file (`override`: a --model path), resolved; MethodFileMissing saying where
+        to get it otherwise."""
+        if override:
+            path = pathlib.Path(override)
+        elif self.where == BASELINES:
+            try:
+                path = baseline_files.baseline_file(self.file, baselines_dir)
+            except FileNotFoundError as e:
+                raise MethodFileMissing(str(e)) from None
+        else:
+            path = self.default_path(models_dir)
+        if not path.is_file():
+            raise MethodFileMissing(f"model file {path} not found")
+        return path.resolve()
