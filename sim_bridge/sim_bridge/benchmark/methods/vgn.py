@@ -80,7 +80,7 @@ class VGNGrasp(Grasp):
     quality, a success probability, as the project's binary models report theirs) with
     VGN's predicted opening. VGN's simulation opens the fingers fully whatever the width."""
 
-    width_m: float
+    width_m: float = dataclasses.field(kw_only=True)  # after Grasp's defaulted fields (rank_key)
 
 
 # the network (networks.py's ConvNet; attribute names are the state dict's)
