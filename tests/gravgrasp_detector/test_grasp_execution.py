@@ -231,6 +231,7 @@ def test_an_approach_stopped_by_contact_backs_out_to_the_pregrasp(gripper_port):
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.UNREACHABLE
     assert outcome.message == f"arm could not reach the grasp pose: {CONTACT}; backed out to the pre-grasp"
+    assert outcome.stopped_by_contact  # the arm's flag, carried to the outcome (the benchmark's records)
     assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.13]
     assert arm.targets[-1][1] == pytest.approx(0.05)  # back out as slowly as it went in
     assert gripper_port.emulator.width_m == pytest.approx(0.085) and ex.armed
@@ -279,6 +280,7 @@ def test_a_guarded_approach_backs_out_when_too_short_or_not_by_contact(gripper_p
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.UNREACHABLE and ex.armed, outcome.message
     assert outcome.message.endswith("; backed out to the pre-grasp"), outcome.message
+    assert outcome.stopped_by_contact == by_contact
     assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.13]
     assert gripper_port.emulator.width_m == pytest.approx(0.085)
 
@@ -323,7 +325,7 @@ def test_only_the_flag_makes_a_stop_on_the_way_to_the_pregrasp_a_contact_stop(gr
     assert outcome.code == ge.ResultCode.UNREACHABLE, outcome.message
     assert outcome.message.startswith(f"arm could not reach the pregrasp pose: {CONTACT}"), outcome.message
     assert ("touched something" in outcome.message) == flagged, outcome.message
-    assert ex.armed != flagged
+    assert ex.armed != flagged and outcome.stopped_by_contact == flagged
 
 
 def test_a_lift_stopped_by_contact_opens_and_backs_out(gripper_port):
@@ -333,6 +335,7 @@ def test_a_lift_stopped_by_contact_opens_and_backs_out(gripper_port):
     assert outcome.code == ge.ResultCode.UNREACHABLE
     assert outcome.message.startswith("arm could not reach the lift pose: stopped by contact"), outcome.message
     assert outcome.message.endswith("; opened and backed out to the pre-grasp"), outcome.message
+    assert outcome.stopped_by_contact
     assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.23, 0.13]
     assert gripper_port.emulator.width_m == pytest.approx(0.085) and ex.armed
 
@@ -344,6 +347,7 @@ def test_a_hand_that_cannot_back_out_disarms(gripper_port):
     assert outcome.code == ge.ResultCode.UNREACHABLE and not ex.armed
     assert "; backing out failed: arm could not reach the pre-grasp (backing out) pose: stopped by contact" in outcome.message
     assert outcome.message.endswith("disarmed: check the hand, then arm again"), outcome.message
+    assert outcome.stopped_by_contact
     assert ex.execute(grasp()).code == ge.ResultCode.NOT_ARMED
 
 
@@ -368,6 +372,7 @@ def test_a_pregrasp_the_arm_refuses_leaves_the_executor_armed(gripper_port):
                                             else original(X, speed, timeout))
     outcome = ex.execute(grasp())
     assert outcome.code == ge.ResultCode.UNREACHABLE and ex.armed, outcome.message
+    assert not outcome.stopped_by_contact
 
 
 def test_a_miss_that_cannot_back_out_disarms(gripper_port, fingers):

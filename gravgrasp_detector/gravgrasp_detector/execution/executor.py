@@ -78,6 +78,9 @@ class ResultCode(enum.IntEnum):
 class Outcome:
     code: ResultCode
     message: str
+    # the arm's contact stop halted a motion of this execution (the flag the arm set, not
+    # the message's words): what the benchmark's records classify jammed approaches by
+    stopped_by_contact: bool = False
 
     @property
     def success(self) -> bool:
@@ -87,8 +90,11 @@ class Outcome:
 class Abort(Exception):
     def __init__(self, code: ResultCode, message: str, stopped_by_contact: bool = False):
         super().__init__(message)
-        self.outcome = Outcome(code, message)
-        self.stopped_by_contact = stopped_by_contact  # the arm's contact stop ended a motion
+        self.outcome = Outcome(code, message, stopped_by_contact)
+
+    @property
+    def stopped_by_contact(self) -> bool:  # the arm's contact stop ended a motion
+        return self.outcome.stopped_by_contact
 
 
 @dataclasses.dataclass
@@ -368,7 +374,7 @@ class GraspExecutor:
         try:
             check_limits({"lift": closing["lift"], "grasp": closing["grasp"]}, self.limits)
         except Abort as refusal:
-            raise Abort(ResultCode.UNREACHABLE, f"{why}; closing there: {refusal.outcome.message}") from None
+            raise Abort(ResultCode.UNREACHABLE, f"{why}; closing there: {refusal.outcome.message}", True) from None
         self._move("backed-off grasp", closing["grasp"], self.limits.approach_speed_mps)
         note = (f"; closed {back_m * 1e3:.1f} {self.CLOSED_SHORT}, backed off where the arm's contact "
                 f"stop halted the approach (close_on_contact_within_m {within * 1e3:.0f} mm)")
@@ -388,7 +394,7 @@ class GraspExecutor:
             self.armed = False
             raise Abort(ResultCode.UNREACHABLE, f"{abort.outcome.message}; the hand touched something on its way "
                                                 "to a pose above the scene; disarmed: check the cell, then arm "
-                                                "again") from None
+                                                "again", True) from None
 
     def _backed_out(self, abort: Abort, gripper, poses, open_first: bool) -> Abort:
         """After the approach or the lift stopped short (UNREACHABLE: e.g. the arm's
@@ -397,9 +403,11 @@ class GraspExecutor:
         stops are left as they are (the executor is disarmed)."""
         if abort.outcome.code != ResultCode.UNREACHABLE:
             return abort
-        return self._back_out(gripper, poses, ResultCode.UNREACHABLE, abort.outcome.message, open_first)
+        return self._back_out(gripper, poses, ResultCode.UNREACHABLE, abort.outcome.message, open_first,
+                              abort.stopped_by_contact)
 
-    def _back_out(self, gripper, poses, code: ResultCode, message: str, open_first: bool) -> Abort:
+    def _back_out(self, gripper, poses, code: ResultCode, message: str, open_first: bool,
+                  stopped_by_contact: bool = False) -> Abort:
         """Open the fingers if they closed, then move back along the approach to the
         pre-grasp at the approach speed. Returns the Abort to raise: `code` with `message`
         and what was done, or, when backing out failed, that failure's code, having
@@ -411,9 +419,10 @@ class GraspExecutor:
         except Abort as failed:
             self.armed = False
             return Abort(failed.outcome.code, f"{message}; backing out failed: {failed.outcome.message}; "
-                                              "disarmed: check the hand, then arm again")
+                                              "disarmed: check the hand, then arm again",
+                         stopped_by_contact or failed.stopped_by_contact)
         done = "opened and backed out" if open_first else "backed out"
-        return Abort(code, f"{message}; {done} to the pre-grasp")
+        return Abort(code, f"{message}; {done} to the pre-grasp", stopped_by_contact)
 
     def _judge(self, gripper, state):
         return grip_calibration.judge_grip(state.object_status, gripper.width_m(state), self.calibration,
