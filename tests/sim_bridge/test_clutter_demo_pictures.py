@@ -2,6 +2,7 @@
 refuses the top-ranked grasp before moving and executes the second, the picture circles
 and titles the second and crosses out the first, as report.json records. No ROS graph:
 the demo's cell runs on a stand-in client; the messages are real."""
+import math
 import types
 
 import numpy as np
@@ -53,11 +54,21 @@ def test_title_when_every_grasp_was_refused():
     assert clutter_demo.attempt_title(SCORES_N, None, [0, 1, 2]).startswith("3 grasps; none executed\nrefused")
 
 
+def test_a_binary_models_picture_shows_validness_not_newtons():
+    """A binary model publishes NaN scores: the title names validness, the colour bar too."""
+    fig = clutter_demo.attempt_figure(_view(), POSITIONS, [math.nan] * 3, executed=1, refused=[0],
+                                      outcome="success", validness=[0.97, 0.91, 0.6])
+    title = fig.axes[0].get_title()
+    assert "executed #2: validness 0.91 (success)" in title and "#1 (validness 0.97)" in title
+    assert " N" not in title and fig.axes[1].get_ylabel() == "validness"
+
+
 class _Client:
     """The demo client's surface: the sim refuses grasp #1 (hand in collision) and lifts
     the object with grasp #2."""
 
-    def __init__(self):
+    def __init__(self, scores_n=SCORES_N):
+        self.scores_n = scores_n
         self.states = self._states(lifted=False)
         self.modes_seen = {}
         self.sent = []
@@ -78,8 +89,8 @@ class _Client:
 
     def fresh_grasps(self, timeout_s):
         msg = GraspArray()
-        for (x, y, z), s in zip(POSITIONS, SCORES_N):
-            g = Grasp(gravity_rejection_score=s, validness=0.9)
+        for (x, y, z), s, v in zip(POSITIONS, self.scores_n, (0.97, 0.9, 0.6)):
+            g = Grasp(gravity_rejection_score=s, validness=v)
             g.pose.position.x, g.pose.position.y, g.pose.position.z = x, y, z
             g.pose.orientation.w = 1.0
             msg.grasps.append(g)
@@ -88,7 +99,7 @@ class _Client:
     def call(self, srv_type, name, request, timeout_s):
         self.sent.append(name)
         if name == "execute_grasp":
-            if request.grasp.gravity_rejection_score == pytest.approx(SCORES_N[0]):
+            if request.grasp.validness == pytest.approx(0.97):  # the top-ranked grasp
                 return ExecuteGrasp.Response(result_code=ExecuteGrasp.Response.IN_COLLISION,
                                              message="hand in collision at pre-grasp")
             self.states = self._states(lifted=True)
@@ -104,9 +115,9 @@ class _Client:
 def test_the_demo_draws_and_reports_the_executed_grasp_not_the_top_ranked(tmp_path, monkeypatch):
     drawn = []
 
-    def record(view, positions, scores, executed, refused, outcome=""):
+    def record(view, positions, scores, executed, refused, outcome="", **kw):
         drawn.append((executed, list(refused), outcome))
-        return real(view, positions, scores, executed, refused, outcome)
+        return real(view, positions, scores, executed, refused, outcome, **kw)
 
     real = clutter_demo.attempt_figure
     monkeypatch.setattr(clutter_demo, "attempt_figure", record)
@@ -120,3 +131,28 @@ def test_the_demo_draws_and_reports_the_executed_grasp_not_the_top_ranked(tmp_pa
     assert attempt["refused"][0]["score_n"] == pytest.approx(63.1, abs=1e-4)
     assert drawn == [(1, [0], "success")]
     assert (tmp_path / "attempt_01.png").stat().st_size > 0
+
+
+def test_a_binary_models_attempt_reports_and_prints_validness(tmp_path, capsys):
+    """score_n None in report.json (strict JSON, no probability under a newton's name), and
+    the attempt line names the validness, not newtons."""
+    report = {"errors": []}
+    cell = clutter_demo.DemoCell(_Client([math.nan] * 3), types.SimpleNamespace(mass_kg=1.0), tmp_path, report)
+    (attempt,) = clear_table(cell, n_objects=1)["attempts"]
+    assert attempt["score_n"] is None and attempt["validness"] == pytest.approx(0.9)
+    assert attempt["all_scores_n"] == [None] * 3 and attempt["all_validness"] == pytest.approx([0.97, 0.9, 0.6])
+    assert attempt["refused"][0]["score_n"] is None and attempt["refused"][0]["validness"] == pytest.approx(0.97)
+    line = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("attempt 1:"))
+    assert "validness 0.90 (no score in N)" in line and "score" not in line.replace("no score in N", ""), line
+    clutter_demo.save_summary_png({**report, "attempts": [{**attempt, "success": True}], "seed": 1, "SR": 1.0,
+                                   "CR": 1.0, "n_objects": 1, "object_mass_kg": 1.0}, tmp_path / "summary.png")
+    assert (tmp_path / "summary.png").stat().st_size > 0
+
+
+def test_the_summary_page_plots_a_score_models_newtons(tmp_path):
+    report = {"errors": []}
+    cell = clutter_demo.DemoCell(_Client(), types.SimpleNamespace(mass_kg=1.0), tmp_path, report)
+    attempts = clear_table(cell, n_objects=1)["attempts"]
+    clutter_demo.save_summary_png({"errors": [], "attempts": attempts, "seed": 1, "SR": 1.0, "CR": 1.0, "n_objects": 1,
+                                   "object_mass_kg": 1.0, "min_score_n": 14.7, "safety": 1.5}, tmp_path / "summary.png")
+    assert (tmp_path / "summary.png").stat().st_size > 0

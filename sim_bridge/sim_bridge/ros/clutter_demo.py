@@ -12,7 +12,8 @@ detected or none passes the executor's checks, or when the executor reports a fa
 Gravity-aware: every object weighs `--mass-kg` (1 kg by default), and the detector
 only returns grasps scored at least `--safety` x its weight; each attempt prints the
 grasp's score against the object's weight and the grasp mode the contacts show
-(power: palm or proximal links touch the object; precision: fingertips only).
+(power: palm or proximal links touch the object; precision: fingertips only). A binary
+model has no score in N (its grasps carry NaN): the demo shows its validness instead.
 
 Two judges: the executor's verdict (gOBJ against its empty-closed calibration) and
 the sim's ground truth (the object is in the hand, 1 cm or more above the table, a
@@ -38,6 +39,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import pathlib
 import sys
@@ -168,30 +170,40 @@ class CameraView:
         return K[0, 0] * p_cam[:, 0] / p_cam[:, 2] + K[0, 2], K[1, 1] * p_cam[:, 1] / p_cam[:, 2] + K[1, 2]
 
 
-def attempt_title(scores_n, executed, refused, outcome="") -> str:
+def strength(score_n, validness) -> str:
+    """A grasp as the demo names it: its gravity-rejection score in N, or its validness
+    where it has no score (NaN: a binary model's grasps)."""
+    return f"{score_n:.1f} N" if math.isfinite(score_n) else f"validness {validness:.2f}"
+
+
+def attempt_title(scores_n, executed, refused, outcome="", validness=None) -> str:
     """The attempt picture's title: how many grasps, which rank the executor executed and
-    its score (None: it executed none), and the ranks it refused before moving."""
+    its score (None: it executed none), and the ranks it refused before moving. Scores
+    NaN (a binary model): the grasps' `validness` instead."""
     if not len(scores_n):
         return "no grasps"
+    validness = [math.nan] * len(scores_n) if validness is None else validness
     if executed is None:
         head = f"{len(scores_n)} grasps; none executed"
     else:
-        head = f"{len(scores_n)} grasps; executed #{executed + 1}: {scores_n[executed]:.1f} N"
+        head = f"{len(scores_n)} grasps; executed #{executed + 1}: {strength(scores_n[executed], validness[executed])}"
         head += f" ({outcome})" if outcome else ""
     if not refused:
         return head
-    listed = ", ".join(f"#{r + 1} ({scores_n[r]:.1f} N)" for r in refused[:4])
+    listed = ", ".join(f"#{r + 1} ({strength(scores_n[r], validness[r])})" for r in refused[:4])
     return head + "\nrefused before motion: " + listed + (f" and {len(refused) - 4} more" if len(refused) > 4 else "")
 
 
-def attempt_figure(view, positions_task, scores_n, executed, refused, outcome="") -> Figure:
+def attempt_figure(view, positions_task, scores_n, executed, refused, outcome="", validness=None) -> Figure:
     """The camera's depth image with every detected grasp's TCP projected, coloured by
-    gravity-rejection score; the executed grasp circled, the refused ones crossed out."""
+    gravity-rejection score (by `validness` where the scores are NaN: a binary model);
+    the executed grasp circled, the refused ones crossed out."""
     u, v = view.pixels(positions_task)
     fig = Figure(figsize=(6.4, 4.8), dpi=100)  # no pyplot: no backend, no global figure list
     ax = fig.subplots()
     ax.imshow(np.where(view.depth_m > 0, view.depth_m, np.nan), cmap="gray")
-    sc = ax.scatter(u, v, c=scores_n, cmap="viridis", s=18)
+    scored = validness is None or np.isfinite(np.asarray(scores_n, float)).all()
+    sc = ax.scatter(u, v, c=scores_n if scored else validness, cmap="viridis", s=18)
     if refused:
         ax.scatter(u[refused], v[refused], s=90, marker="x", color="orange", linewidths=2,
                    label="refused before motion")
@@ -200,9 +212,9 @@ def attempt_figure(view, positions_task, scores_n, executed, refused, outcome=""
                    label="executed")
     if refused or executed is not None:
         ax.legend(loc="lower right", fontsize=8)
-    fig.colorbar(sc, ax=ax, label="gravity-rejection score [N]")
+    fig.colorbar(sc, ax=ax, label="gravity-rejection score [N]" if scored else "validness")
     ax.set_axis_off()
-    ax.set_title(attempt_title(scores_n, executed, refused, outcome), fontsize=10)
+    ax.set_title(attempt_title(scores_n, executed, refused, outcome, validness), fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -224,27 +236,30 @@ def judge(states):
 def save_summary_png(report, path):
     """One page: each attempt's executed score against the object's weight, with every
     detected grasp's score behind it (crossed: refused before motion); colour = outcome,
-    label = mode."""
+    label = mode. A model without scores (score_n None: a binary model): validness."""
     attempts = report["attempts"]
+    scored = all(a["score_n"] is not None for a in attempts)
+    key, every = ("score_n", "all_scores_n") if scored else ("validness", "all_validness")
     fig = Figure(figsize=(8.27, 5.0), dpi=100)
     ax = fig.subplots()
     for k, a in enumerate(attempts, 1):
-        ax.scatter([k] * len(a["all_scores_n"]), a["all_scores_n"], s=12, color="0.75", zorder=1)
+        ax.scatter([k] * len(a[every]), a[every], s=12, color="0.75", zorder=1)
         colour = "tab:green" if a["success"] else "tab:red"
-        ax.scatter([k], [a["score_n"]], s=90, color=colour, edgecolors="black", zorder=3)
-        ax.annotate(f"{a['mode'] or '-'}\n{a['result']}", (k, a["score_n"]), textcoords="offset points",
+        ax.scatter([k], [a[key]], s=90, color=colour, edgecolors="black", zorder=3)
+        ax.annotate(f"{a['mode'] or '-'}\n{a['result']}", (k, a[key]), textcoords="offset points",
                     xytext=(10, -4), fontsize=8)
-    refused = [(k, r["score_n"]) for k, a in enumerate(attempts, 1) for r in a.get("refused", [])]
+    refused = [(k, r[key]) for k, a in enumerate(attempts, 1) for r in a.get("refused", [])]
     if refused:
         ax.scatter(*zip(*refused), s=40, marker="x", color="orange", zorder=2, label="refused before motion")
-    weight = report["object_mass_kg"] * G_MPS2
-    ax.axhline(weight, color="tab:blue", linestyle="--", label=f"object weight {weight:.1f} N")
-    ax.axhline(report["min_score_n"], color="tab:orange", linestyle=":",
-               label=f"min score {report['min_score_n']:.1f} N ({report['safety']:g} x weight)")
+    if scored:
+        weight = report["object_mass_kg"] * G_MPS2
+        ax.axhline(weight, color="tab:blue", linestyle="--", label=f"object weight {weight:.1f} N")
+        ax.axhline(report["min_score_n"], color="tab:orange", linestyle=":",
+                   label=f"min score {report['min_score_n']:.1f} N ({report['safety']:g} x weight)")
     ax.set_xticks(range(1, len(attempts) + 1))
     ax.set_xlim(0.5, max(len(attempts), 1) + 1.0)
     ax.set_xlabel("attempt")
-    ax.set_ylabel("gravity-rejection score [N]")
+    ax.set_ylabel("gravity-rejection score [N]" if scored else "validness (a binary model: no score in N)")
     ax.set_title(f"make demo, seed {report['seed']}: SR {report['SR']:.2f}, CR {report['CR']:.2f} "
                  f"({report['n_objects']} objects of {report['object_mass_kg']:g} kg); grey = all detected grasps",
                  fontsize=9)
@@ -309,7 +324,8 @@ class DemoCell:
         grasps = self._grasps.grasps
         positions = [[g.pose.position.x, g.pose.position.y, g.pose.position.z] for g in grasps]
         scores = np.array([g.gravity_rejection_score for g in grasps], float)
-        fig = attempt_figure(self._view, positions, scores, executed, [r["rank"] for r in self._refused], outcome)
+        fig = attempt_figure(self._view, positions, scores, executed, [r["rank"] for r in self._refused], outcome,
+                             validness=np.array([g.validness for g in grasps], float))
         fig.savefig(self.out / f"attempt_{self.n_views:02d}.png")
 
     def execute(self, top, grasps) -> dict:
@@ -323,8 +339,8 @@ class DemoCell:
         response = client.call(ExecuteGrasp, "execute_grasp", request, 300)
         if response.result_code in REFUSED_BEFORE_MOTION:
             self.last_refusal = response.message
-            self._refused.append({"rank": rank, "score_n": float(top.gravity_rejection_score),
-                                  "message": response.message})
+            self._refused.append({"rank": rank, "score_n": _newtons(top.gravity_rejection_score),
+                                  "validness": float(top.validness), "message": response.message})
             raise Refused(response.message)
         result = RESULT_NAMES.get(response.result_code, str(response.result_code))
         if response.result_code in FAULTS:
@@ -343,11 +359,12 @@ class DemoCell:
         # the execution), also for an object lost later in the lift.
         mode = mode or client.modes_seen.get(target, "")
         weight_n = mass * G_MPS2
-        score = float(top.gravity_rejection_score)
+        score = float(top.gravity_rejection_score)  # NaN: a binary model, no score in N
         success = bool(response.success) and truth
         outcome = "success" if success else "not_lifted" if response.success else result.lower()
-        attempt = {"score_n": score, "validness": float(top.validness),
-                   "all_scores_n": [float(g.gravity_rejection_score) for g in grasps.grasps],
+        attempt = {"score_n": _newtons(score), "validness": float(top.validness),
+                   "all_scores_n": [_newtons(g.gravity_rejection_score) for g in grasps.grasps],
+                   "all_validness": [float(g.validness) for g in grasps.grasps],
                    "pose_xyz_qxyzw": [pp.x, pp.y, pp.z, qq.x, qq.y, qq.z, qq.w],
                    "object": target, "weight_n": round(weight_n, 2), "mode": mode,
                    "result": result, "message": response.message, "outcome": outcome,
@@ -356,8 +373,10 @@ class DemoCell:
         self.save_attempt_png(rank, outcome)
         self.n_attempts += 1
         k = self.n_attempts
-        print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: score {score:.1f} N vs weight {weight_n:.1f} N "
-              f"({score / weight_n:.1f}x), {mode + ' grasp' if mode else 'never in the hand'} -> "
+        against = (f"score {score:.1f} N vs weight {weight_n:.1f} N ({score / weight_n:.1f}x)" if math.isfinite(score)
+                   else f"{strength(score, top.validness)} (no score in N), weight {weight_n:.1f} N")
+        print(f"attempt {k}: grasp #{rank + 1} on {target or '?'}: {against}, "
+              f"{mode + ' grasp' if mode else 'never in the hand'} -> "
               f"{'SUCCESS' if success else 'FAIL'} "
               f"({result}: {response.message})", flush=True)
         if bool(response.success) != truth:
@@ -368,6 +387,12 @@ class DemoCell:
         for name in lifted:
             client.call(RemoveObject, "remove_object", RemoveObject.Request(name=name), 60)
         return attempt
+
+
+def _newtons(score_n):
+    """A published score for report.json: None for NaN (a binary model's), strict JSON."""
+    score_n = float(score_n)
+    return score_n if math.isfinite(score_n) else None
 
 
 def run(args) -> dict:
