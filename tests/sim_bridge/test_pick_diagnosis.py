@@ -56,8 +56,12 @@ def test_diagnosis_of_picks_inside_and_above_the_box():
     inside = pd.diagnose_pick(view, top_down(0.15, 0.15, 0.09), 0.05, ROBOTIQ_2F85, {}, TABLE_Z)
     assert inside["tcp_class"] == "inside" and not inside["vgn_keeps"]
     assert inside["closing_region"]["inside"] > 0 and inside["surface_distance_mm"] < VOXEL * 1000
+    # where VGN's TCP would sit, 4.6 cm back up the approach: 3.6 cm above the top, within 2
+    # dilations of the band in front of it, which VGN keeps
+    assert inside["vgn_keeps_base"]
     above = pd.diagnose_pick(view, top_down(0.15, 0.15, 0.25), 0.05, ROBOTIQ_2F85, {}, TABLE_Z)
     assert above["tcp_class"] == "free" and above["surface_distance_mm"] > 100
+    assert not above["vgn_keeps"] and not above["vgn_keeps_base"]
 
 
 def test_first_contact_of_a_top_down_approach_onto_the_box():

@@ -11,7 +11,11 @@ The geometry behind studies.before_lift_diagnosis (issue 42): no physics, no ROS
                 (a power grasp's TCP inside a large object), or outside the camera's view
 - `vgn_keeps`: VGN's mask (detection.py of ethz-asl/vgn, as benchmark.methods.vgn applies
   it): a voxel counts only within 2 six-connected dilations of observed free space
-  (grid > 0.5) that do not enter observed inside (1e-3 < grid < 0.5).
+  (grid > 0.5) that do not enter observed inside (1e-3 < grid < 0.5). VGN's TCP is the
+  Panda's finger base, its finger tips 5 cm ahead; the 2F-85's TCP is the pinch point
+  between the pads, at an object's middle. So `diagnose_pick` tests the mask twice: at the
+  TCP (the mask applied to this network's voxels as they are) and at the point where VGN's
+  TCP would sit on the same approach (`VGN_TCP_Z_M`, 5 cm behind the finger tips).
 - `first_contact`: the open hand's boxes (perception.hand_clearance.HandGeometry, the
   executor's model of the hand) moved from the pre-grasp along the approach to the grasp
   pose against the true objects (surface samples) and the table plane: the approach
@@ -33,12 +37,15 @@ from scipy import ndimage
 
 from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP
 from gravgrasp_detector.perception.tsdf import to_network_grid
+from robotiq_driver.hand_geometry import FINGER_TIP_Z_M
 
 SURFACE_CLASSES = ("inside", "band", "free", "unobserved")
 BAND_LIMIT = 0.98  # |d| / truncation at which the grid drops a voxel (tsdf.to_network_grid)
 SAMPLE_SPACING_M = 0.002  # object surface samples this far apart (about)
 MAX_SAMPLES = 60_000  # per object: a 0.24 m^2 surface at 2 mm
 SAME_PICK_M, SAME_PICK_DEG = 0.02, 30.0
+VGN_FINGER_DEPTH_M = 0.05  # VGN's finger_depth: its TCP -> finger tips
+VGN_TCP_Z_M = FINGER_TIP_Z_M - VGN_FINGER_DEPTH_M  # that TCP in the 2F-85's TCP frame (z = approach)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -188,5 +195,6 @@ def diagnose_pick(view: View, X_grasp, approach_m: float, hand, object_points: d
             "tcp_grid": round(float(view.grid[tuple(ijk)]), 3) if ok else None,
             "surface_distance_mm": round(1000 * surface_distance_m(view, tcp), 1),
             "vgn_keeps": vgn_keeps(view, tcp, mask),
+            "vgn_keeps_base": vgn_keeps(view, tcp + VGN_TCP_Z_M * X[:3, 2], mask),
             "closing_region": closing_region_classes(view, X),
             "first_contact": first_contact(X, approach_m, hand, object_points, table_z_m)}

@@ -49,7 +49,7 @@ from ..benchmark.clearing import clear_table
 from ..benchmark.methods import METHODS
 from ..benchmark.protocol import Protocol, weight_key
 from ..benchmark.replay import closing_region_contents
-from ..benchmark.report import outcome_class
+from ..benchmark.report import attempt_scores, outcome_class
 from ..benchmark.rounds import RoundTask, make_cell
 from ..physics.scenes import TABLE_HEIGHT_M
 
@@ -64,8 +64,10 @@ LEVERS = {
     "guarded approach": ("execution", "the arm's contact stop halted the approach (jammed_on_approach), or "
                                       "the approach meets something (first contact), at most "
                                       f"{GUARDED_WITHIN_M * 1e3:.0f} mm short of the grasp pose"),
-    "VGN mask": ("selection", "VGN's mask drops the pick's voxel (inside, or not within 2 dilations of "
+    "VGN mask": ("selection", "VGN's mask drops the pick's TCP voxel (inside, or not within 2 dilations of "
                               "observed free space)"),
+    "VGN mask at the base": ("selection", "VGN's mask drops the point where VGN's TCP would sit, 5 cm behind "
+                                          "the finger tips on the pick's approach"),
     "validness floor": ("selection", f"the pick's validness is below {VALIDNESS_FLOOR}"),
     "validness x score": ("selection", "Ours ranked by validness x score picks another grasp in the same view"),
     "inside negatives": ("training", "the pick's TCP is inside or unobserved (behind the observed surface)"),
@@ -192,17 +194,21 @@ def diagnose_round(results_dir, method, mass_kg, scene_id, model_paths: dict) ->
         view = state["view"]
         if n in wanted:
             entry = {"attempt": n, "outcome": wanted[n], "reason": rec["reason"], "rank": rec["rank"],
-                     "mode": rec.get("mode", ""), "validness": rec["validness"], "score": rec["score"],
+                     "mode": rec.get("mode", ""), **attempt_scores(rec, recorded["target"]),
                      "replayed_outcome": result["outcome"], "same_pose": bool(same_pose)}
             if same_pose:
                 entry["diagnosis"] = diagnose_view(cell, view, grasp, compare)
             out["failures"].append(entry)
         elif same_pose and rec["outcome"] == "success":
             # where the picks that worked sat: what a selection lever would also take away
-            tcp = np.asarray(grasp.pose)[:3, 3]
-            out["successes"].append({"attempt": n, "validness": rec["validness"],
-                                     "tcp_class": str(pick_diagnosis.surface_class(view[2], tcp)[0]),
-                                     "vgn_keeps": pick_diagnosis.vgn_keeps(view[2], tcp)})
+            X = np.asarray(grasp.pose)
+            mask = pick_diagnosis.vgn_mask(view[2].grid)
+            out["successes"].append({
+                "attempt": n, "validness": rec["validness"],
+                "tcp_class": str(pick_diagnosis.surface_class(view[2], X[:3, 3])[0]),
+                "vgn_keeps": pick_diagnosis.vgn_keeps(view[2], X[:3, 3], mask),
+                "vgn_keeps_base": pick_diagnosis.vgn_keeps(view[2], X[:3, 3] + pick_diagnosis.VGN_TCP_Z_M * X[:3, 2],
+                                                           mask)})
         if not same or (n >= (last or 0) and "all_refused" not in wanted.values()):
             raise _Enough
         return result
@@ -223,7 +229,7 @@ def diagnose_round(results_dir, method, mass_kg, scene_id, model_paths: dict) ->
             tsdf, grasps, _, _ = state["view"]
             top = grasps[0]
             entry.update(same_pose=True, validness=round(float(top.validness), 4),
-                         score=round(float(top.score_n), 4) if np.isfinite(top.score_n) else None,
+                         score_n=round(float(top.score_n), 4) if np.isfinite(top.score_n) else None,
                          refused_because=cell.feasible(top, tsdf)[:200],
                          diagnosis=diagnose_view(cell, state["view"], top, compare))
         out["failures"].append(entry)
@@ -233,8 +239,8 @@ def diagnose_round(results_dir, method, mass_kg, scene_id, model_paths: dict) ->
         if n not in reached:
             rec = recorded["attempts"][n - 1]
             out["failures"].append({"attempt": n, "outcome": c, "reason": rec["reason"], "rank": rec["rank"],
-                                    "mode": rec.get("mode", ""), "validness": rec["validness"],
-                                    "score": rec["score"], "replayed_outcome": "", "same_pose": False})
+                                    "mode": rec.get("mode", ""), **attempt_scores(rec, recorded["target"]),
+                                    "replayed_outcome": "", "same_pose": False})
     out["failures"].sort(key=lambda f: f["attempt"])
     return {**out, "replayed": len(done), "diverged_at": diverged, "cpu_s": round(time.process_time() - t0, 1)}
 
@@ -259,6 +265,8 @@ def levers_of(failure: dict) -> list:
         out.append("guarded approach")
     if not d["vgn_keeps"]:
         out.append("VGN mask")
+    if not d["vgn_keeps_base"]:
+        out.append("VGN mask at the base")
     if failure.get("validness") is not None and failure["validness"] < VALIDNESS_FLOOR:
         out.append("validness floor")
     other = d["compare"].get("ours_expected")
@@ -271,6 +279,11 @@ def levers_of(failure: dict) -> list:
     if failure["outcome"] == "all_refused" or (contact and contact["short_m"] > 0):
         out.append("label-time clearance")
     return out
+
+
+def _score_n(failure):
+    """Its score in N (None: a binary model's); outputs written before score_n say `score`."""
+    return failure.get("score_n", failure.get("score"))
 
 
 def _fmt(v, digits=2):
@@ -305,12 +318,13 @@ def report_lines(records: list) -> list:
             if d is None:
                 lines.append(f"| {r['method']} | {r['mass_kg']} | {r['scene_id']} | {f['attempt']} | {f['outcome']} | "
                              "not diagnosed (replay diverged) | | | "
-                             f"{_fmt(f.get('validness'))} | {_fmt(f.get('score'), 1)} | {f['mode']} | | | |")
+                             f"{_fmt(f.get('validness'))} | {_fmt(_score_n(f), 1)} | {f['mode']} | | | |")
                 continue
             lines.append(f"| {r['method']} | {r['mass_kg']} | {r['scene_id']} | {f['attempt']} | {f['outcome']} | "
-                         f"{d['tcp_class']}{'' if d['vgn_keeps'] else ' (VGN drops)'} | "
+                         f"{d['tcp_class']}{'' if d['vgn_keeps'] else ' (VGN drops)'}"
+                         f"{'' if d['vgn_keeps_base'] else ' (VGN drops base)'} | "
                          f"{d['surface_distance_mm']:.0f} mm | {_contact(f, d)} | "
-                         f"{_fmt(f.get('validness'))} | {_fmt(f.get('score'), 1)} | {f['mode']} | "
+                         f"{_fmt(f.get('validness'))} | {_fmt(_score_n(f), 1)} | {f['mode']} | "
                          f"{_other_cell(d, next(iter(d['compare']), None))} | {_other_cell(d, 'ours_expected')} | "
                          f"{', '.join(levers_of(f))} |")
     diagnosed = [(r, f) for r, f in rows if "diagnosis" in f]
@@ -330,8 +344,12 @@ def report_lines(records: list) -> list:
     for method, ss in sorted(succ.items()):
         if ss:
             dropped = sum(not s["vgn_keeps"] for s in ss)
+            dropped_base = sum(not s["vgn_keeps_base"] for s in ss)
             low = sum(s["validness"] < VALIDNESS_FLOOR for s in ss)
-            lines.append(f"- {method}'s replayed successes ({len(ss)}): VGN's mask would drop {dropped}, "
+            classes = collections.Counter(s["tcp_class"] for s in ss)
+            lines.append(f"- {method}'s replayed successes ({len(ss)}, what a selection lever would also cost): "
+                         + ", ".join(f"{c} {classes[c]}" for c in pick_diagnosis.SURFACE_CLASSES)
+                         + f"; VGN's mask would drop {dropped} (at the base {dropped_base}), "
                          f"the validness floor {low}")
     lines += ["", "Levers and their rules:", ""] + [f"- {k} ({kind}): {rule}" for k, (kind, rule) in LEVERS.items()]
     cpu = [r["cpu_s"] for r in records if r["replayed"]]
