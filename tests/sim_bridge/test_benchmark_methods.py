@@ -112,7 +112,7 @@ def cylinder_scene():
 def top_down(x, y, z):
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R_TOP_DOWN, [x, y, z]
-    return types.SimpleNamespace(pose=pose, score_n=0.95, validness=0.95)
+    return types.SimpleNamespace(pose=pose, score_n=float("nan"), validness=0.95, rank_key=0.95)  # no score in N
 
 
 @needs_panda

@@ -282,6 +282,8 @@ def test_a_ranking_variant_runs_its_base_methods_model_under_its_own_ranking(tmp
     keys = [g.validness * g.score_n for g in by_expected]
     assert keys == sorted(keys, reverse=True) and [g.score_n for g in by_score] == sorted(
         (g.score_n for g in by_score), reverse=True)
+    assert [g.rank_key for g in by_expected] == pytest.approx(keys)  # the key is its own field, score_n stays N
+    assert all(g.rank_key == g.score_n for g in by_score)
     assert [g.voxel_index for g in by_expected] != [g.voxel_index for g in by_score]
 
 
@@ -307,9 +309,9 @@ def test_binary_model_ranks_by_validness(tmp_path):
     # a min-score threshold in N must not apply to probabilities
     detect = gravgrasp_method.make_detect(model, meta, protocol.Protocol(validness_threshold=0.0, min_score_n=1e6))
     grasps = detect((grid, 0.0075, np.zeros(3)))
-    assert grasps and all(0.0 <= g.score_n <= 1.0 for g in grasps)
-    assert [g.score_n for g in grasps] == sorted((g.score_n for g in grasps), reverse=True)
-    assert all(g.score_n == pytest.approx(g.validness) for g in grasps)
+    assert grasps and all(math.isnan(g.score_n) for g in grasps)  # no score in N, not its probability
+    assert [g.rank_key for g in grasps] == sorted((g.rank_key for g in grasps), reverse=True)
+    assert all(g.rank_key == g.validness and 0.0 <= g.validness <= 1.0 for g in grasps)
 
 
 # -- a small run in Drake ---------------------------------------------------------------
@@ -336,10 +338,11 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert ours["end"] in ("table_clear", "consecutive_failures", "no_feasible_grasp", "attempt_limit")
     assert ours["attempts"] >= 1 and ours["n_objects"] + len(ours["left_before_start"]) == protocol.OBJECTS_PER_SCENE
     for a in attempts["attempts"]:
-        assert set(a) >= {"method", "mass_kg", "scene_id", "object", "pose", "score", "score_unit", "outcome",
-                          "success", "reason", "mode"}
+        assert set(a) >= {"method", "mass_kg", "scene_id", "object", "pose", "score_n", "validness", "rank_key",
+                          "outcome", "success", "reason", "mode"}
         assert a["mode"] in ("power", "precision") if a["success"] else a["mode"] in ("", "power", "precision")
-        assert np.asarray(a["pose"]).shape == (4, 4) and a["score_unit"] == "N" and a["mass_kg"] == 0.3
+        assert np.asarray(a["pose"]).shape == (4, 4) and a["mass_kg"] == 0.3
+        assert a["score_n"] > 0 and a["rank_key"] == a["score_n"] and 0 <= a["validness"] <= 1  # ranked by N
     results = json.loads((out / "results.json").read_text())
     row = next(r for r in results if r["method"] == "ours")
     assert row["SR"] == pytest.approx(row["successes"] / row["attempts"])
@@ -408,10 +411,12 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     view = cell.observe()
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R_TOP_DOWN, [0.15, 0.15, 0.05 + height_m - 0.025]
-    g = types.SimpleNamespace(pose=pose, score_n=1.0, validness=1.0)
+    g = types.SimpleNamespace(pose=pose, score_n=30.0, validness=0.9, rank_key=27.0)
     assert cell.feasible(g, view) == ""
     result = cell.execute(g, view)
     assert result["outcome"] == "success", result
+    assert (result["score_n"], result["validness"], result["rank_key"], result["stopped_by_contact"]) == (
+        30.0, 0.9, 27.0, False)  # the record's fields (clearing.grasp_fields), apart
     assert len(result["lifted"]) == 1 and result["mode"] in ("power", "precision")
     assert cell.objects_on_table() == [] and cell.world.object_names() == []  # removed
     assert np.allclose(cell.world.tcp_pose()[:3, 3], cell.home[:3, 3], atol=1e-3)  # back home

@@ -2,6 +2,7 @@
 published weights, the project's TSDF as VGN's get_grid builds it, VGN's post-processing,
 the grasp frame the Panda executor takes, and the real network on a rendered box."""
 
+import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -186,7 +187,8 @@ def test_a_known_peak_gives_one_grasp_at_its_voxel_with_its_orientation_and_widt
     np.testing.assert_allclose(g.pose[:3, 3], origin + np.array([20, 20, 9]) * VS)  # index x voxel, VGN's
     np.testing.assert_allclose(g.pose[:3, :3], R_GRASP, atol=1e-6)
     assert g.width_m == pytest.approx(4.0 * VS)
-    assert g.score_n == g.validness and 0.95 < g.score_n <= 0.99
+    assert g.rank_key == g.validness and 0.95 < g.validness <= 0.99
+    assert math.isnan(g.score_n)  # a probability is never a score in N
 
 
 def test_selection_thresholds_suppresses_neighbours_and_ranks_best_first():
@@ -197,7 +199,7 @@ def test_selection_thresholds_suppresses_neighbours_and_ranks_best_first():
     quaternions[3] = 1.0
     grasps = vgn.select_grasps(quality, quaternions, np.full((40, 40, 40), 3.0, np.float32))
     assert [g.voxel_index for g in grasps] == [(30, 30, 9), (10, 10, 9)]
-    assert [g.score_n for g in grasps] == pytest.approx([0.98, 0.95])
+    assert [g.rank_key for g in grasps] == [g.validness for g in grasps] == pytest.approx([0.98, 0.95])
 
 
 # the grasp frame the Panda executor takes

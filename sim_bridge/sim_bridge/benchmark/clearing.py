@@ -36,7 +36,8 @@ def clear_table(cell, n_objects: int, attempts_per_object: int = ATTEMPTS_PER_OB
     detected grasp is executable, or on a Fault.
     -> {end, attempts, fell_off} (+ fault: its message, when a Fault ended the round;
     + refused: {grasps, first: the first refusal reasons}, when no grasp was feasible);
-    each attempt is {rank, grasps_detected, skipped_infeasible, **execute's dict, success}."""
+    each attempt is {rank, grasps_detected, skipped_infeasible, **execute's dict, success}
+    (the benchmark's execute puts `grasp_fields` and the executor's stopped_by_contact there)."""
     attempts, fell_off, failures = [], [], 0
     max_attempts = attempts_per_object * n_objects
     while True:
@@ -75,6 +76,17 @@ def clear_table(cell, n_objects: int, attempts_per_object: int = ATTEMPTS_PER_OB
     if end == "no_feasible_grasp":  # why the cell would start none of the last detection's grasps
         record["refused"] = {"grasps": len(rejected), "first": [r[:200] for r in rejected[:MAX_REFUSALS_KEPT]]}
     return record
+
+
+def grasp_fields(grasp) -> dict:
+    """What an attempt record keeps of the grasp it executed (a detection.Grasp): score_n,
+    the gravity-rejection score in N (None for a model without one: a binary model, VGN;
+    records never hold a probability under a newton's name), validness, and rank_key, what
+    the method ranked its grasps by (score_n, validness or validness x score_n). Records
+    before these fields (schema 1) hold one `score`: report.attempt_scores reads both."""
+    score_n = float(grasp.score_n)
+    return {"score_n": None if math.isnan(score_n) else round(score_n, 4),
+            "validness": round(float(grasp.validness), 4), "rank_key": round(float(grasp.rank_key), 4)}
 
 
 def success_rates(successes: int, attempts: int, objects: int, empty: float = math.nan) -> tuple:

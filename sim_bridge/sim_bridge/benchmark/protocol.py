@@ -28,7 +28,10 @@ PROCEDURAL_SEED = 1000  # training objects use procedural seed 0
 PROCEDURAL_POOL = 100
 OBJECTS_PER_SCENE = 5
 LIFTED_MIN_HEIGHT_M = 0.05
-SCHEMA_VERSION = 1
+# Round records and attempts.json. 2: an attempt holds score_n (N, null for a model without
+# a score), validness, rank_key and stopped_by_contact; 1 held one `score`, in N for a score
+# model and the validness for a binary one (report.attempt_scores reads both).
+SCHEMA_VERSION = 2
 MAX_POOLS = 3  # worker pools started before a run gives up on repeated native crashes
 
 

@@ -121,7 +121,7 @@ def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_at
         before = recorded["attempts"][n - 1] if n <= len(recorded["attempts"]) else {}
         entry = {"attempt": n, "recorded": before.get("outcome", "(none)"), "replayed": result["outcome"],
                  "same_pose": bool(before) and np.allclose(before["pose"], result["pose"], atol=2e-6),
-                 "validness": result["validness"], "score": result["score"], **contents,
+                 **{k: result[k] for k in ("score_n", "validness", "rank_key")}, **contents,
                  "reason": result["reason"]}
         if dump_dir is not None:
             grid, voxel_size_m, origin = tsdf

@@ -107,8 +107,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
         for i, a in enumerate(r["attempts"]):
             attempts.append({"method": r["method"], "mass_kg": r["mass_kg"], "scene_id": r["scene_id"],
                              "attempt": i + 1, "object": a["lifted"], "pose": a["pose"],
-                             "score": a["score"], "score_unit": "probability" if r["target"] == "binary" else "N",
-                             "validness": a["validness"], "rank": a["rank"], "outcome": outcome_class(a),
+                             **attempt_scores(a, r["target"]), "rank": a["rank"], "outcome": outcome_class(a),
                              "success": a["success"], "reason": a["reason"], "mode": a.get("mode", "")})
     atomic_files.save_json(out / "attempts.json", {
         "schema_version": SCHEMA_VERSION, "attempts": attempts,
@@ -165,6 +164,20 @@ def comparison_lines(comparisons) -> list:
     return lines
 
 
+def attempt_scores(attempt: dict, target: str) -> dict:
+    """{score_n, validness, rank_key} of a round's attempt record (clearing.grasp_fields).
+    A record from before those fields (schema 1) has one `score` in mixed units: newtons
+    for a score model, the validness it was ranked by for a binary one (the round's
+    `target` says which); its score_n is then None for a binary model, and its rank_key is
+    the validness for a binary model and None (not recorded: score or validness x score)
+    for a score model."""
+    if "score" not in attempt:
+        return {k: attempt.get(k) for k in ("score_n", "validness", "rank_key")}
+    binary = target == "binary"
+    return {"score_n": None if binary else attempt["score"], "validness": attempt["validness"],
+            "rank_key": attempt["validness"] if binary else None}
+
+
 def outcome_class(attempt: dict) -> str:
     """An attempt's outcome, with the executor's `unreachable` split by where the arm's
     contact limit stopped it: `jammed_on_approach` (on the way to the pre-grasp or grasp
@@ -172,11 +185,14 @@ def outcome_class(attempt: dict) -> str:
     rise: it holds something that is held down, or presses on the table). Other
     `unreachable` attempts (a target outside the arm's reach) keep the executor's word.
     A miss whose backing out then failed is a `no_object` (the miss is what the attempt
-    did; the executor answers with the back-out's failure)."""
+    did; the executor answers with the back-out's failure). A contact stop is the record's
+    `stopped_by_contact` (the executor's flag); records from before it (schema 1) say so
+    only in the reason's words."""
     outcome, reason = attempt["outcome"], attempt.get("reason", "")
     if reason.startswith("the grasp missed the object"):
         return "no_object"
-    if outcome == "unreachable" and "stopped by contact" in reason:
+    by_contact = attempt["stopped_by_contact"] if "stopped_by_contact" in attempt else "stopped by contact" in reason
+    if outcome == "unreachable" and by_contact:
         if reason.startswith(("arm could not reach the pregrasp pose", "arm could not reach the grasp pose")):
             return "jammed_on_approach"
         if reason.startswith("arm could not reach the lift"):

@@ -18,7 +18,7 @@ from ..physics import panda_hand
 from ..physics.contact import SimSettings
 from ..physics.hands import HANDS, hand_spec
 from ..world import SceneConfig, SimWorld, WorldSettings
-from .clearing import Refused
+from .clearing import Refused, grasp_fields
 from .protocol import LIFTED_MIN_HEIGHT_M, Protocol
 
 # What the executor knows of each hand (physics.hands' names): its opening and the open
@@ -213,7 +213,8 @@ class SimCell:
 
     def execute(self, grasp, tsdf) -> dict:
         """Run the grasp, hold, shake, judge by ground truth, remove what was lifted,
-        open and go home. -> {pose, score, validness, outcome, reason, lifted, mode}; `mode`
+        open and go home. -> {pose, score_n, validness, rank_key (clearing.grasp_fields),
+        outcome, reason, stopped_by_contact (the executor's), lifted, mode}; `mode`
         is "power" or "precision" for an object in the hand after the executor's lift, else
         "". Raises
         Refused for a grasp the executor would not start (`feasible`)."""
@@ -243,8 +244,8 @@ class SimCell:
             up[2, 3] = self.home[2, 3]  # straight up first if the direct path is blocked
             self.world.move_tcp(up, self.limits.max_speed_mps, 30.0)
             self.world.move_tcp(self.home, self.limits.max_speed_mps, 30.0)
-        return {"pose": np.asarray(grasp.pose).round(6).tolist(), "score": round(float(grasp.score_n), 4),
-                "validness": round(float(grasp.validness), 4),
+        return {"pose": np.asarray(grasp.pose).round(6).tolist(), **grasp_fields(grasp),
+                "stopped_by_contact": result.stopped_by_contact,
                 "outcome": outcome, "reason": reason, "lifted": lifted if outcome == "success" else [],
                 "mode": mode}
 

@@ -113,7 +113,7 @@ def study_round(sr: StudyRound) -> dict:
         attempts.append({"attempt": n + 1, "recorded": sr.recorded_outcomes[n] if n < len(sr.recorded_outcomes) else None,
                          "old": {"outcome": result["outcome"], "cpu_s": cpu_s, "sim_s": sim_s,
                                  "reason": result["reason"][:200]},
-                         "new": new, "validness": result["validness"], "score": result["score"]})
+                         "new": new, **{k: result[k] for k in ("score_n", "validness", "rank_key")}})
         return result
 
     cell.execute = paired_execute

@@ -42,7 +42,7 @@ from gravgrasp_detector.execution.executor import plan_poses
 from gravgrasp_detector.perception.hand_clearance import collisions
 from gravgrasp_detector.perception.model_file import file_sha256
 
-from ..benchmark.clearing import Refused
+from ..benchmark.clearing import Refused, grasp_fields
 from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.methods import METHODS
 from ..benchmark.protocol import Protocol, weight_key
@@ -108,8 +108,7 @@ def run_scene(task: SceneTask) -> dict:
         swept = hits.get("approach and grasp pose", hits.get("pre-grasp pose", {}))  # the sweep holds the pre-grasp
         verdict = "accepted" if not why else "collision" if why.startswith(COLLISION) else "other"
         candidates.append({"rank": rank, "verdict": verdict, "refusal": why, "voxels": sum(swept.values()),
-                           "parts": swept, "score_n": round(float(g.score_n), 3),
-                           "validness": round(float(g.validness), 4),
+                           "parts": swept, **grasp_fields(g),
                            "pose": np.asarray(g.pose).round(6).tolist()})
     for c in candidates:
         if c["verdict"] == "collision":

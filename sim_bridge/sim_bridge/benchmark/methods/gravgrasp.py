@@ -11,7 +11,7 @@ import functools
 import numpy as np
 
 from gravgrasp_detector.perception.detection import DetectionOptions, detect_grasps
-from gravgrasp_detector.perception.model_file import check_volume, load_model, ranking, training_target
+from gravgrasp_detector.perception.model_file import check_volume, has_score, load_model, ranking, training_target
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 from .method import Detector, Method
@@ -21,7 +21,7 @@ def make_detect(model, metadata, protocol, rank_by=None):
     """tsdf tuple -> ranked grasps, under the protocol's detection settings."""
     options = DetectionOptions(validness_threshold=protocol.validness_threshold, min_score_n=protocol.min_score_n,
                                max_grasps=protocol.max_grasps, rank_by=rank_by or ranking(metadata),
-                               clear_hand=protocol.clear_hand)
+                               has_score=has_score(metadata), clear_hand=protocol.clear_hand)
 
     def detect(tsdf):
         grid, voxel_size_m, origin = tsdf

@@ -20,12 +20,13 @@ class MethodFileMissing(FileNotFoundError):
 @dataclasses.dataclass(frozen=True)
 class Detector:
     """A method made ready for one cell: `detect((grid, voxel_size_m, origin))` -> grasps
-    best first (each with `pose` T_task_tcp of the method's hand, `score_n`, `validness`),
+    best first (each with `pose` T_task_tcp of the method's hand, `score_n` in N or NaN for
+    a method without a score, `validness`, and `rank_key`: what it was ranked by),
     reading views integrated into `volume` (a TSDFVolume of its own)."""
     detect: Callable
     volume: object
-    # what its scores are, for the round record and the report: a model file's training
-    # target ("gravity-score": newtons), "binary" (a success probability)
+    # what it predicts, for the round record and the report: a model file's training
+    # target ("gravity-score": a score in N), "binary" (validness only: score_n NaN)
     target: str
 
 

@@ -76,9 +76,10 @@ class VGNOptions:
 
 @dataclasses.dataclass
 class VGNGrasp(Grasp):
-    """A project Grasp (pose T_task_tcp, VGN's TCP; score_n and validness both VGN's
-    quality, a success probability, as the project's binary models report theirs) with
-    VGN's predicted opening. VGN's simulation opens the fingers fully whatever the width."""
+    """A project Grasp (pose T_task_tcp, VGN's TCP; validness and rank_key VGN's quality,
+    a success probability, and score_n NaN: VGN has no score in N, as the project's binary
+    models have none) with VGN's predicted opening. VGN's simulation opens the fingers
+    fully whatever the width."""
 
     width_m: float = dataclasses.field(kw_only=True)  # after Grasp's defaulted fields (rank_key)
 
@@ -231,7 +232,8 @@ def select_grasps(quality, quaternions, width_voxels, voxel_size_m=VOXEL_SIZE_M,
         pose[:3, :3] = Rotation.from_quat(quaternions[:, i, j, k]).as_matrix()
         pose[:3, 3] = np.array([i, j, k], dtype=np.float64) * voxel_size_m
         q = float(quality[i, j, k])
-        grasps.append(VGNGrasp(pose=T_task_grid @ pose, score_n=q, validness=q, voxel_index=(int(i), int(j), int(k)),
+        grasps.append(VGNGrasp(pose=T_task_grid @ pose, score_n=float("nan"), validness=q, rank_key=q,
+                               voxel_index=(int(i), int(j), int(k)),
                                width_m=float(width_voxels[i, j, k]) * voxel_size_m))
     return grasps
 
