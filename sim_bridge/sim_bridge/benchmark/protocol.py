@@ -72,6 +72,7 @@ class Protocol:
 EXECUTION_SETTINGS = {
     "v4": {"lift_speed_mps": 0.05, "freeze_resting_objects": False},
     "freeze_only": {"lift_speed_mps": 0.05, "freeze_resting_objects": True},
+    "lift_only": {"lift_speed_mps": 0.15, "freeze_resting_objects": False},
     "fast": {"lift_speed_mps": 0.15, "freeze_resting_objects": True},
 }
 LEGACY_EXECUTION = EXECUTION_SETTINGS["v4"]

@@ -16,6 +16,11 @@ So every new-settings attempt starts from exactly the scene and grasp the old on
 and its outcome (success, dropped, no_object, ...) is compared with the old one's. CPU
 and simulated time are measured for each, side by side, on the same machine.
 
+The arm `NUDGED` is the noise floor: the old settings, the grasp moved 30 um across the
+pads (a UR5e's rated repeatability). An outcome that flips under it is not decided by the
+method nor by the settings, so a setting is judged against how often the old settings
+disagree with themselves.
+
     python -m sim_bridge.studies.execution_settings_study --out sim_bridge/results/execution_settings_study
 
 One JSON per round under --out/rounds (a rerun resumes), the summary in
@@ -31,6 +36,7 @@ import pathlib
 import sys
 import time
 
+import numpy as np
 import torch
 
 from gravgrasp_detector import atomic_files
@@ -56,6 +62,19 @@ DEFAULT_ROUNDS = (
                                                       "packed_002", "pile_002", "packed_003", "pile_003")),
 )
 STUDIED = ("fast",)
+NUDGED = "v4_nudged"  # the old settings, the grasp moved NUDGE_M along its x axis
+NUDGE_M = 30e-6
+
+
+def nudged(grasp):
+    """`grasp` moved NUDGE_M along its own x (across the pads: the closing is along y)."""
+    pose = np.array(grasp.pose, dtype=float)
+    pose[:3, 3] += NUDGE_M * pose[:3, 0]
+    return dataclasses.replace(grasp, pose=pose)
+
+
+def settings_of(name: str) -> dict:
+    return EXECUTION_SETTINGS["v4"] if name == NUDGED else EXECUTION_SETTINGS[name]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,9 +116,10 @@ def study_round(sr: StudyRound) -> dict:
         checkpoint = cell.checkpoint()
         new = {}
         for name in sr.settings:
-            _switch(cell, with_execution(old, name))
+            _switch(cell, old if name == NUDGED else with_execution(old, name))
+            g = nudged(grasp) if name == NUDGED else grasp
             try:
-                result, cpu_s, sim_s = _timed(cell, lambda: execute(grasp, tsdf))
+                result, cpu_s, sim_s = _timed(cell, lambda: execute(g, tsdf))
             except Refused:  # the same checks refuse under every setting
                 cell.rewind(checkpoint)
                 raise
@@ -108,6 +128,7 @@ def study_round(sr: StudyRound) -> dict:
             new[name] = {"outcome": result["outcome"], "cpu_s": cpu_s, "sim_s": sim_s,
                          "reason": result.get("reason", "")[:200]}
             cell.rewind(checkpoint)
+        _switch(cell, old)
         result, cpu_s, sim_s = _timed(cell, lambda: execute(grasp, tsdf))
         n = len(attempts)
         attempts.append({"attempt": n + 1, "recorded": sr.recorded_outcomes[n] if n < len(sr.recorded_outcomes) else None,
@@ -121,7 +142,7 @@ def study_round(sr: StudyRound) -> dict:
     cell.remove_fallen()
     clear_table(cell, len(cell.objects_on_table()), old.attempts_per_object)
     return {"results_dir": sr.results_dir, "method": sr.task.method, "mass_kg": sr.task.mass_kg,
-            "scene_id": sr.task.scene["scene_id"], "settings": {n: EXECUTION_SETTINGS[n] for n in sr.settings},
+            "scene_id": sr.task.scene["scene_id"], "settings": {n: settings_of(n) for n in sr.settings},
             "old_settings": {k: getattr(old, k) for k in EXECUTION_SETTINGS["v4"]},
             "attempts": attempts, "cpu_s": round(time.process_time() - t_start, 1)}
 
@@ -133,7 +154,7 @@ def _guarded(sr):
         return {"error": f"{type(e).__name__}: {str(e)[:300]}"}
 
 
-def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models") -> list:
+def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models", methods=None) -> list:
     """StudyRounds of the committed rounds; ValueError (one line) for a missing round or model."""
     out = []
     # Interleaved (the first scene of every group, then the second, ...): a study cut
@@ -141,6 +162,8 @@ def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models") -> list:
     order = sorted(((k, g) for g, (*_, scenes) in enumerate(rounds) for k in range(len(scenes))))
     for k, g in order:
         results_dir, method, mass_kg, scenes = rounds[g]
+        if methods is not None and method not in methods:
+            continue
         sid = scenes[k]
         d = pathlib.Path(results_dir)
         config = json.loads((d / "config.json").read_text())
@@ -180,7 +203,7 @@ def summarize(records: list, settings) -> dict:
         cpu_old = sum(a["old"]["cpu_s"] for a in rows)
         cpu_new = sum(a["new"][name]["cpu_s"] or 0.0 for a in rows)
         summary["settings"][name] = {
-            **EXECUTION_SETTINGS[name], "attempts": len(rows),
+            **settings_of(name), "attempts": len(rows),
             "outcome_agreement": round((len(rows) - len(differ)) / len(rows), 4) if rows else None,
             "success_agreement": round(same_success / len(rows), 4) if rows else None,
             "attempt_cpu_ratio": round(cpu_new / cpu_old, 3) if cpu_old else None,
@@ -195,7 +218,9 @@ def markdown(summary: dict) -> str:
     lines = [f"{summary['rounds']} rounds, {summary['attempts']} attempts; the v4 replay gave the committed "
              f"outcome in {summary['replay_matched_recorded']} of them.", ""]
     for name, s in summary["settings"].items():
-        lines += [f"**{name}** ({', '.join(f'{k} {v}' for k, v in EXECUTION_SETTINGS[name].items())}): "
+        what = (f"v4's settings, the grasp moved {NUDGE_M * 1e6:.0f} um: the noise floor" if name == NUDGED else
+                ", ".join(f"{k} {v}" for k, v in EXECUTION_SETTINGS[name].items()))
+        lines += [f"**{name}** ({what}): "
                   f"outcome agreement **{s['outcome_agreement']}**, success agreement {s['success_agreement']}, "
                   f"CPU {s['attempt_cpu_ratio']} of v4's on the same attempts, simulated time "
                   f"{s['attempt_sim_s_new']} s against {s['attempt_sim_s_old']} s.", "",
@@ -213,7 +238,9 @@ def main(argv=None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     p.add_argument("--out", default="sim_bridge/results/execution_settings_study")
     p.add_argument("--settings", default=",".join(STUDIED),
-                   help=f"execution settings to compare with the rounds' own ({', '.join(EXECUTION_SETTINGS)})")
+                   help=f"execution settings to compare with the rounds' own ({', '.join(EXECUTION_SETTINGS)}), "
+                        f"or {NUDGED}: the rounds' own with the grasp moved {NUDGE_M * 1e6:.0f} um (the noise floor)")
+    p.add_argument("--methods", help="study only these methods' rounds (comma-separated; default: all of the plan's)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--max-rounds", type=int, help="study only the first N rounds of the plan")
     p.add_argument("--no-progress", action="store_true")
@@ -222,8 +249,10 @@ def main(argv=None) -> int:
     settings = tuple(s for s in args.settings.split(",") if s)
     try:
         for s in settings:
-            with_execution(Protocol(), s)
-        rounds = plan(settings=settings)[:args.max_rounds]
+            if s != NUDGED:
+                with_execution(Protocol(), s)
+        methods = set(args.methods.split(",")) if args.methods else None
+        rounds = plan(settings=settings, methods=methods)[:args.max_rounds]
     except (ValueError, OSError) as e:
         print(f"execution_settings_study: {e}", file=sys.stderr)
         return 2
