@@ -347,7 +347,7 @@ def report_lines(records: list) -> list:
             dropped_base = sum(not s["vgn_keeps_base"] for s in ss)
             low = sum(s["validness"] < VALIDNESS_FLOOR for s in ss)
             classes = collections.Counter(s["tcp_class"] for s in ss)
-            lines.append(f"- {method}'s replayed successes ({len(ss)}, what a selection lever would also cost): "
+            lines.append(f"- {method}, replayed successes ({len(ss)}, what a selection lever would also cost): "
                          + ", ".join(f"{c} {classes[c]}" for c in pick_diagnosis.SURFACE_CLASSES)
                          + f"; VGN's mask would drop {dropped} (at the base {dropped_base}), "
                          f"the validness floor {low}")
