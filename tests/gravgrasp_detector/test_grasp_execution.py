@@ -292,10 +292,44 @@ def test_without_the_guard_a_short_contact_stop_backs_out(gripper_port):
     assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.08, 0.13]
 
 
+def test_a_fast_approach_slows_for_the_last_centimetre(gripper_port):
+    """approach_fast_speed_mps: pre-grasp -> 1 cm short of the grasp at that speed, the
+    last centimetre at the approach speed (as a real cell approaches)."""
+    ex, arm = make_executor(gripper_port, approach_fast_speed_mps=0.15)
+    outcome = ex.execute(grasp())
+    assert outcome.code == ge.ResultCode.SUCCESS, outcome.message
+    assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.09, 0.08, 0.23]
+    assert [s for _, s in arm.targets[2:4]] == [pytest.approx(0.15), pytest.approx(0.05)]
+
+
+@pytest.mark.parametrize("left_m, closes", [(0.001, True), (0.009, False)])
+def test_a_stop_on_the_fast_part_of_the_approach_counts_its_distance_to_the_grasp(gripper_port, left_m, closes):
+    """Stopped `left_m` short of the fast part's end is left_m + 1 cm short of the grasp:
+    the guard (15 mm) closes there only if that is within it."""
+    ex, arm = make_executor(gripper_port, approach_fast_speed_mps=0.15, close_on_contact_within_m=0.015)
+    original = arm.move_to
+
+    def move_to(X, speed, timeout):
+        if abs(X[2, 3] - 0.09) < 1e-6:
+            arm.targets.append((X.copy(), speed))
+            return ge.ArmMotion(False, CONTACT, True, left_m)
+        return original(X, speed, timeout)
+    arm.move_to = move_to
+    outcome = ex.execute(grasp())
+    if closes:
+        assert outcome.code == ge.ResultCode.SUCCESS, outcome.message
+        assert "closed 12.0 mm short of the grasp pose" in outcome.message, outcome.message
+    else:
+        assert outcome.code == ge.ResultCode.UNREACHABLE and outcome.stopped_by_contact, outcome.message
+        assert [round(X[2, 3], 3) for X, _ in arm.targets] == [0.28, 0.13, 0.09, 0.13]
+
+
 def test_a_bad_guard_distance_is_refused_at_start(gripper_port):
     for bad in (-0.001, float("nan")):
         with pytest.raises(ValueError, match="close_on_contact_within_m"):
             make_executor(gripper_port, close_on_contact_within_m=bad)
+        with pytest.raises(ValueError, match="approach_fast_speed_mps"):
+            make_executor(gripper_port, approach_fast_speed_mps=bad)
 
 
 def test_a_contact_stop_is_the_arms_flag_not_its_words():

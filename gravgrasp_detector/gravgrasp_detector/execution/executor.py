@@ -105,6 +105,10 @@ class ExecutionLimits:
     approach_cone_deg: float = 80.0    # max angle between approach (TCP z) and gravity (down)
     max_speed_mps: float = 0.25        # arm TCP speed cap
     approach_speed_mps: float = 0.05   # pre-grasp -> grasp, and backing out
+    # A faster approach, as a real cell makes it: pre-grasp -> approach_slow_last_m short
+    # of the grasp at this speed, the rest at approach_speed_mps. 0: all of it slow.
+    approach_fast_speed_mps: float = 0.0
+    approach_slow_last_m: float = 0.01
     lift_speed_mps: float = 0.05       # grasp -> lift, with the object in the hand
     max_force_n: float = 235.0         # gripper force cap (2F-85 max)
     grip_force_n: float = 40.0         # the paper's grasp force
@@ -231,6 +235,11 @@ class GraspExecutor:
         if not (np.isfinite(limits.close_on_contact_within_m) and limits.close_on_contact_within_m >= 0):
             raise ValueError(f"close_on_contact_within_m {limits.close_on_contact_within_m}: give how far short of "
                              "the grasp [m] a contact-stopped approach may close (0 = always back out)")
+        for name in ("approach_fast_speed_mps", "approach_slow_last_m"):
+            value = getattr(limits, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} {value}: give a value >= 0 (approach_fast_speed_mps 0: the whole "
+                                 "approach at approach_speed_mps)")
         self._stored_calibration = None  # a bad stored value stops the node at start (ValueError)
         if limits.empty_closed_width_m is not None:
             self._stored_calibration = grip_calibration.stored_calibration(
@@ -329,8 +338,7 @@ class GraspExecutor:
         self._move_to_start("pregrasp", poses["pregrasp"])
         guarded = ""
         try:
-            motion = self._move("grasp", poses["grasp"], lim.approach_speed_mps,
-                                require_arrival=lim.close_on_contact_within_m <= 0)
+            motion = self._approach(poses)
             if not motion.arrived:
                 poses, guarded = self._close_short(motion, poses)
         except Abort as abort:
@@ -352,6 +360,22 @@ class GraspExecutor:
         if not verdict.held:
             return Outcome(ResultCode.DROPPED, f"the object slipped out during the lift: {verdict.reason}{guarded}")
         return Outcome(ResultCode.SUCCESS, f"lifted {lim.lift_height_m:.2f} m and held, {verdict.reason}{guarded}")
+
+    def _approach(self, poses) -> ArmMotion:
+        """Pre-grasp -> grasp: at approach_speed_mps, or, with approach_fast_speed_mps set,
+        fast to approach_slow_last_m short of the grasp and slow from there. A stop on the
+        fast part is reported as the approach's: its distance left counts to the grasp."""
+        lim = self.limits
+        guarded = lim.close_on_contact_within_m > 0
+        slow_m = lim.approach_slow_last_m
+        travel_m = float(np.linalg.norm(poses["grasp"][:3, 3] - poses["pregrasp"][:3, 3]))
+        if lim.approach_fast_speed_mps > lim.approach_speed_mps and travel_m > slow_m:
+            X_slow = poses["grasp"].copy()
+            X_slow[:3, 3] -= slow_m * poses["grasp"][:3, 2]
+            fast = self._move("grasp", X_slow, lim.approach_fast_speed_mps, require_arrival=not guarded)
+            if not fast.arrived:
+                return fast._replace(distance_left_m=fast.distance_left_m + slow_m)
+        return self._move("grasp", poses["grasp"], lim.approach_speed_mps, require_arrival=not guarded)
 
     CONTACT_BACKOFF_M = 0.001  # off the surface the contact stop pressed on, before closing
     CLOSED_SHORT = "mm short of the grasp pose"  # in every outcome after a guarded close

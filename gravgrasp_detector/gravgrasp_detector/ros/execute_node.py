@@ -112,6 +112,11 @@ class ExecuteNode(Node):
             max_speed_mps=param("max_speed_mps", defaults.max_speed_mps, "arm TCP speed limit [m/s]"),
             approach_speed_mps=param("approach_speed_mps", defaults.approach_speed_mps,
                                      "pre-grasp -> grasp speed, and backing out [m/s]"),
+            approach_fast_speed_mps=param("approach_fast_speed_mps", defaults.approach_fast_speed_mps,
+                                          "pre-grasp -> approach_slow_last_m short of the grasp at this speed, "
+                                          "the rest at approach_speed_mps [m/s] (0: all of it slow)"),
+            approach_slow_last_m=param("approach_slow_last_m", defaults.approach_slow_last_m,
+                                       "the last part of the approach at approach_speed_mps [m]"),
             lift_speed_mps=param("lift_speed_mps", defaults.lift_speed_mps,
                                  "grasp -> lift speed with the object in the hand [m/s]"),
             max_force_n=param("max_force_n", defaults.max_force_n, "gripper force limit [N]"),

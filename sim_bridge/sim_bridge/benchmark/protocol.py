@@ -63,17 +63,21 @@ class Protocol:
     # Defaults: "v4"'s; a config.json without these keys was run under LEGACY_EXECUTION.
     lift_speed_mps: float = 0.05      # grasp -> lift (the executor's approach speed before)
     freeze_resting_objects: bool = False  # world.resting_objects
+    approach_fast_speed_mps: float = 0.0  # the approach fast to 1 cm short of the grasp (0: all at 5 cm/s)
 
 
 # Named execution settings (`--execution NAME`): what a round's motions and physics cost.
 # "v4": every run up to benchmark v4; "freeze_only": objects at rest away from the hand
 # frozen; "fast": that and a lift at 0.15 m/s (a UR cell's free-space speeds are
-# 0.1-0.25 m/s). What each changes in the outcomes: execution_settings_study.
+# 0.1-0.25 m/s); "fast_approach": "fast" and the approach at 0.15 m/s to 1 cm short of
+# the grasp, 5 cm/s from there (as a UR cell approaches). What each changes in the
+# outcomes: studies.execution_settings_study.
 EXECUTION_SETTINGS = {
-    "v4": {"lift_speed_mps": 0.05, "freeze_resting_objects": False},
-    "freeze_only": {"lift_speed_mps": 0.05, "freeze_resting_objects": True},
-    "lift_only": {"lift_speed_mps": 0.15, "freeze_resting_objects": False},
-    "fast": {"lift_speed_mps": 0.15, "freeze_resting_objects": True},
+    "v4": {"lift_speed_mps": 0.05, "freeze_resting_objects": False, "approach_fast_speed_mps": 0.0},
+    "freeze_only": {"lift_speed_mps": 0.05, "freeze_resting_objects": True, "approach_fast_speed_mps": 0.0},
+    "lift_only": {"lift_speed_mps": 0.15, "freeze_resting_objects": False, "approach_fast_speed_mps": 0.0},
+    "fast": {"lift_speed_mps": 0.15, "freeze_resting_objects": True, "approach_fast_speed_mps": 0.0},
+    "fast_approach": {"lift_speed_mps": 0.15, "freeze_resting_objects": True, "approach_fast_speed_mps": 0.15},
 }
 LEGACY_EXECUTION = EXECUTION_SETTINGS["v4"]
 DEFAULT_EXECUTION = "v4"  # the benchmark CLI's --execution

@@ -136,6 +136,7 @@ class SimCell:
         self.limits = ExecutionLimits(grip_force_n=protocol.grip_force_n, arm_timeout_s=30.0,
                                       max_speed_mps=protocol.free_space_speed_mps,
                                       lift_speed_mps=protocol.lift_speed_mps,
+                                      approach_fast_speed_mps=protocol.approach_fast_speed_mps,
                                       close_on_contact_within_m=protocol.close_on_contact_within_m,
                                       hand=HAND_GEOMETRY[hand])
         gripper = GRIPPERS[hand]

@@ -94,7 +94,8 @@ def _switch(cell, protocol: Protocol):
     """Run the cell's next attempt under `protocol`'s execution settings."""
     w = cell.world
     cell.protocol = protocol
-    cell.limits = dataclasses.replace(cell.limits, lift_speed_mps=protocol.lift_speed_mps)
+    cell.limits = dataclasses.replace(cell.limits, lift_speed_mps=protocol.lift_speed_mps,
+                                      approach_fast_speed_mps=protocol.approach_fast_speed_mps)
     cell.executor.limits = cell.limits
     w.freeze_resting_objects(protocol.freeze_resting_objects)
 
