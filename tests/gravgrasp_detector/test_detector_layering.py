@@ -3,11 +3,11 @@ __init__.py): perception and calibration at the bottom, training and execution o
 tools on training, ros on top. Only ros talks to ROS. Read from the source with `ast`, so an
 import inside a function counts."""
 
-import ast
 import pathlib
 import sys
 
 import pytest
+from import_graph import module_imports  # tests/support
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "gravgrasp_detector" / "gravgrasp_detector"
 PLUMBING = {"poses", "atomic_files", "problem_log"}  # shared modules at the top; they import no sub-package
@@ -29,20 +29,7 @@ def _modules():
 
 
 def _imports(path: pathlib.Path):
-    """(absolute module name, line) for every import in `path`."""
-    package = list(path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts[:-1])
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield alias.name, node.lineno
-        elif isinstance(node, ast.ImportFrom):
-            base = package[: len(package) - node.level + 1] if node.level else []
-            module = ".".join(base + ([node.module] if node.module else []))
-            if node.module is None:  # from . import a, b
-                for alias in node.names:
-                    yield f"{module}.{alias.name}", node.lineno
-            else:
-                yield module, node.lineno
+    return module_imports(path, PACKAGE_DIR.parent)
 
 
 def _sub_package(path: pathlib.Path):

@@ -8,6 +8,7 @@ import pathlib
 import sys
 
 import pytest
+from import_graph import module_imports  # tests/support
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge"
 PLUMBING = {"parallel"}  # shared modules at the top; they import no sub-package
@@ -27,21 +28,7 @@ def _modules():
 
 
 def _imports(path: pathlib.Path):
-    """(absolute module name, line) for every import in `path`."""
-    rel = path.relative_to(PACKAGE_DIR.parent).with_suffix("")
-    package = list(rel.parts[:-1]) if rel.name != "__init__" else list(rel.parts[:-1])
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield alias.name, node.lineno
-        elif isinstance(node, ast.ImportFrom):
-            base = package[: len(package) - node.level + 1] if node.level else []
-            module = ".".join(base + ([node.module] if node.module else []))
-            if node.module is None:  # from . import a, b
-                for alias in node.names:
-                    yield f"{module}.{alias.name}", node.lineno
-            else:
-                yield module, node.lineno
+    return module_imports(path, PACKAGE_DIR.parent)
 
 
 def _sub_package(path: pathlib.Path):

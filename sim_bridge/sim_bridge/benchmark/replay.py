@@ -70,17 +70,23 @@ def closing_region_contents(X_task_tcp, tsdf, object_points) -> dict:
     return {"observed": observed, "objects": objects}
 
 
-class _SurfaceSamples:
-    """Each object's mesh sampled once (its own frame), posed where the world has it now."""
+def mesh_samples(mesh) -> np.ndarray:
+    """MESH_SAMPLES points on a mesh's surface, in its own frame (fixed seed)."""
+    return trimesh.sample.sample_surface(mesh, MESH_SAMPLES, seed=0)[0]
 
-    def __init__(self, world):
-        self.world, self._local = world, {}
+
+class SurfaceSamples:
+    """Each object's mesh sampled once (its own frame, by `sample`), posed where the world
+    has it now."""
+
+    def __init__(self, world, sample=mesh_samples):
+        self.world, self._sample, self._local = world, sample, {}
 
     def now(self) -> dict:
         out = {}
         for name, (mesh, X) in self.world.object_meshes().items():
             if name not in self._local:
-                self._local[name] = trimesh.sample.sample_surface(mesh, MESH_SAMPLES, seed=0)[0]
+                self._local[name] = self._sample(mesh)
             out[name] = self._local[name] @ X[:3, :3].T + X[:3, 3]
         return out
 
@@ -112,7 +118,7 @@ def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_at
     cell, _ = make_cell(task)
     if dump_dir is not None:
         pathlib.Path(dump_dir).mkdir(parents=True, exist_ok=True)
-    done, execute, samples = [], cell.execute, _SurfaceSamples(cell.world)
+    done, execute, samples = [], cell.execute, SurfaceSamples(cell.world)
 
     def observed_execute(grasp, tsdf):
         contents = closing_region_contents(np.asarray(grasp.pose), tsdf, samples.now())

@@ -48,7 +48,7 @@ from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.clearing import clear_table
 from ..benchmark.methods import METHODS
 from ..benchmark.protocol import Protocol, weight_key
-from ..benchmark.replay import closing_region_contents
+from ..benchmark.replay import SurfaceSamples, closing_region_contents
 from ..benchmark.report import attempt_scores, outcome_class
 from ..benchmark.rounds import RoundTask, make_cell
 from ..physics.scenes import TABLE_HEIGHT_M
@@ -90,21 +90,6 @@ def find_failures(record: dict) -> list:
     if record["end"] == "no_feasible_grasp":
         found.append((len(record["attempts"]) + 1, "all_refused"))
     return found
-
-
-class _Samples:
-    """Each object's mesh sampled once (pick_diagnosis.sample_surface), posed as the world has it now."""
-
-    def __init__(self, world):
-        self.world, self._local = world, {}
-
-    def now(self) -> dict:
-        out = {}
-        for name, (mesh, X) in self.world.object_meshes().items():
-            if name not in self._local:
-                self._local[name] = pick_diagnosis.sample_surface(mesh)
-            out[name] = self._local[name] @ X[:3, :3].T + X[:3, 3]
-        return out
 
 
 def _pick(grasp) -> dict:
@@ -170,7 +155,7 @@ def diagnose_round(results_dir, method, mass_kg, scene_id, model_paths: dict) ->
     wanted = {n: c for n, c in failures}
     last = max(n for n, _ in failures if n <= len(recorded["attempts"])) if any(
         n <= len(recorded["attempts"]) for n, _ in failures) else None
-    samples, state, done = _Samples(cell.world), {}, []
+    samples, state, done = SurfaceSamples(cell.world, pick_diagnosis.sample_surface), {}, []
     detect, execute = cell.detect, cell.execute
 
     def observed_detect():
