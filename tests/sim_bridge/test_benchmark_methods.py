@@ -19,19 +19,9 @@ from sim_bridge.physics import panda_hand
 from sim_bridge.physics.baseline_files import BaselineFileMissing, baseline_file, baselines_dir
 from sim_bridge.physics.hands import HANDS
 from sim_bridge.world import R_TOP_DOWN
+from baselines import needs_panda  # tests/support
 
 pytestmark = pytest.mark.drake
-
-
-def _have_panda():
-    try:
-        baseline_file(panda_hand.URDF)
-        return True
-    except BaselineFileMissing:
-        return False
-
-
-needs_panda = pytest.mark.skipif(not _have_panda(), reason=f"no panda_hand/ under {baselines_dir()}")
 
 
 # -- the registry -------------------------------------------------------------------------

@@ -11,23 +11,13 @@ from sim_bridge.physics.baseline_files import BaselineFileMissing, baseline_file
 from sim_bridge.physics.objects import procedural_object
 from sim_bridge.physics.scenes import TABLE_HEIGHT_M
 from sim_bridge.world import R_TOP_DOWN, SceneConfig, SimWorld, WorldSettings, pose
+from baselines import needs_panda  # tests/support
 
 pytestmark = pytest.mark.drake
 
 CENTRE = (0.15, 0.15)
 DIAMETER_M, HEIGHT_M, MASS_KG = 0.04, 0.10, 0.3
 GRIP_N = 40.0
-
-
-def _have_panda():
-    try:
-        baseline_file(panda_hand.URDF)
-        return True
-    except BaselineFileMissing:
-        return False
-
-
-needs_panda = pytest.mark.skipif(not _have_panda(), reason=f"no panda_hand/ under {baselines_dir()}")
 
 
 @pytest.fixture(scope="module")
