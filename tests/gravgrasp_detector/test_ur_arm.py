@@ -28,9 +28,12 @@ def tcp(x, y, z, R=DOWN):
 def make_arm(ur=None, log=None, **overrides):
     ur = ur or FakeURController()
     # The executor's default base: 0.45 m in front of the workspace, turned 90 deg.
-    # Timeouts generous enough for a loaded 2-core machine; the hang tests shorten them.
+    # Timeouts generous enough for a loaded 2-core machine; the hang tests shorten them. A
+    # 1 s RTDE watchdog (the adapter's is 0.2 s): under CI load the kick thread starved past
+    # 0.2 s and the stand-in ended the script mid-move; the watchdog's own tests set 0.2 s.
     settings = dict(X_task_base=xyz_yaw_to_matrix([0.15, -0.45, 0.0, math.pi / 2]), call_timeout_s=1.5,
-                    connect_timeout_s=3.0, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2)
+                    connect_timeout_s=3.0, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2,
+                    watchdog_period_s=1.0)
     settings.update(overrides)
     arm = URArm(ur.connect, URArmSettings(**settings), log=log)
     # Start the fake TCP where the first target of most tests is, in the base frame.
