@@ -3,6 +3,8 @@ refuses the top-ranked grasp before moving and executes the second, the picture 
 and titles the second and crosses out the first, as report.json records. No ROS graph:
 the demo's cell runs on a stand-in client; the messages are real."""
 import math
+import threading
+import time
 import types
 
 import numpy as np
@@ -156,3 +158,19 @@ def test_the_summary_page_plots_a_score_models_newtons(tmp_path):
     clutter_demo.save_summary_png({"errors": [], "attempts": attempts, "seed": 1, "SR": 1.0, "CR": 1.0, "n_objects": 1,
                                    "object_mass_kg": 1.0, "min_score_n": 14.7, "safety": 1.5}, tmp_path / "summary.png")
     assert (tmp_path / "summary.png").stat().st_size > 0
+
+
+def test_the_first_attempt_gets_its_picture_when_the_camera_is_heard_late(tmp_path):
+    """The demo's first detection came before its client had heard the camera, and
+    attempt_01.png was silently not drawn: the cell waits for the camera (here 0.3 s)."""
+    client = _Client()
+    heard = (client.depth, client.info, client.camera_pose)
+    client.depth = client.info = client.camera_pose = None
+
+    def hear():
+        time.sleep(0.3)
+        client.depth, client.info, client.camera_pose = heard
+    threading.Thread(target=hear, daemon=True).start()
+    cell = clutter_demo.DemoCell(client, types.SimpleNamespace(mass_kg=1.0), tmp_path, {"errors": []})
+    assert clear_table(cell, n_objects=1)["end"] == "table_clear"
+    assert (tmp_path / "attempt_01.png").stat().st_size > 0

@@ -306,7 +306,7 @@ class DemoCell:
         if grasps is None or not grasps.grasps:
             return grasps, []
         # Drawn once the executor has answered: the picture shows the grasp it executed.
-        self._view, self._grasps, self._refused = CameraView.from_client(client), grasps, []
+        self._view, self._grasps, self._refused = self._camera_view(), grasps, []
         # While the arm moves nobody needs new views: fusing and detecting them would
         # take CPU from the physics. (Paused only now: the executor wants a TSDF
         # younger than its max_tsdf_age_s.)
@@ -315,6 +315,18 @@ class DemoCell:
         self.n_views += 1
         client.modes_seen = {}
         return grasps, list(grasps.grasps)
+
+    def _camera_view(self, timeout_s: float = 5.0):
+        """The view the pictures draw on. The first detection can come before the client has
+        heard the camera (its subscriptions start with the demo): wait for it, and say so if
+        it never comes rather than leave the attempt without a picture in silence."""
+        deadline = time.monotonic() + timeout_s
+        while (view := CameraView.from_client(self.client)) is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if view is None:
+            print(f"demo: no depth image, camera info and camera pose within {timeout_s:.0f} s: "
+                  f"attempt_{self.n_views + 1:02d}.png is not drawn", flush=True)
+        return view
 
     def save_attempt_png(self, executed, outcome=""):
         """attempt_<k>.png (k: the view's number) of the last detection: `executed` (a rank,
