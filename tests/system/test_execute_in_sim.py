@@ -46,7 +46,11 @@ def world(tmp_path_factory):
     procs.append(RosProcess("gravgrasp_detector", "execute", params={"gripper_port": link, "arm_timeout_s": 120.0,
                                                                      "gripper_timeout_s": 60.0,
                                                                      "gripper_reply_timeout_s": 0.5,
-                                                                     "table_z_m": 0.05},  # the sim's table top
+                                                                     "table_z_m": 0.05,  # the sim's table top
+                                                                     # CI shares 2 cores between this sim, the detector
+                                                                     # and another test worker: the camera can lag ~10 s
+                                                                     # (the 5 s refusal itself: test_execute_node).
+                                                                     "max_tsdf_age_s": 30.0},
                             log_dir=tmp))
     procs[-1].wait_for_output("execute ready", timeout_s=60)
     rclpy.init()
