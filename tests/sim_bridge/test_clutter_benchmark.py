@@ -348,6 +348,11 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert row["SR"] == pytest.approx(row["successes"] / row["attempts"])
     md = (out / "results.md").read_text()
     assert "| ours | 0.3 | 1/1 |" in md
+    from sim_bridge.benchmark.machine import machine_name
+    here = machine_name()
+    assert json.loads((out / "config.json").read_text())["machines"] == [here]
+    assert json.loads((out / "rounds" / "ours" / "0.3" / "packed_000.json").read_text())["machine"] == here
+    assert f"Rounds by machine: {here} (2)" in md  # ours' round and blind's
     # Every attempt appears once in the outcome table.
     md_lines = md.splitlines()
     at = next(i for i, line in enumerate(md_lines) if line.startswith("| method | weight [kg] | success"))
@@ -383,8 +388,12 @@ def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
     assert cb.main(argv + ["--report"]) == 0
     assert cb.main(argv[:1] + [str(tmp_path / "nothing")] + argv[2:] + ["--report"]) == 2
     assert "holds no benchmark run" in capsys.readouterr().err
+    # A run resumed on another machine type keeps its rounds and lists both machines.
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "machines": ["Other CPU, 4 cores"]}))
     assert cb.main(argv) == 0
     assert (out / "attempts.json").read_text() == first
+    assert json.loads((out / "config.json").read_text())["machines"] == sorted(["Other CPU, 4 cores", here])
     # Another configuration in the same directory is refused.
     assert cb.main(argv + ["--hold-s", "2"]) == 2
     assert "another configuration" in capsys.readouterr().err

@@ -144,6 +144,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     lines.append(f"Excluded objects ({len(excluded)}): " + (", ".join(
         f"{e['name']} ({e.get('min_width_mm', '?')} mm)" if "min_width_mm" in e else f"{e['name']} ({e['reason']})"
         for e in excluded) or "none"))
+    lines.append(machine_line(rounds))
     atomic_files.save_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
     plot(rows, plan, out / "sr_cr_vs_weight.png")
     return rows
@@ -225,6 +226,16 @@ def end_lines(rounds, plan) -> list:
     counts = _tally(rounds, lambda r: [r["end"]])
     ends = sorted({e for row in counts.values() for e in row})
     return ["How the rounds ended:", "", *_count_table(counts, ends, plan)]
+
+
+def machine_line(rounds) -> str:
+    """Which machine types ran the rounds (a round replays exactly only on its own type)."""
+    counts = _tally(rounds, lambda r: [r.get("machine", "not recorded")])
+    total = {}
+    for row in counts.values():
+        for name, n in row.items():
+            total[name] = total.get(name, 0) + n
+    return "Rounds by machine: " + (", ".join(f"{name} ({n})" for name, n in sorted(total.items())) or "none")
 
 
 def _tally(rounds, labels_of) -> dict:

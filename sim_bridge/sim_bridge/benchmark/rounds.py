@@ -20,6 +20,7 @@ from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
 from ..world import WorldSettings
 from .clearing import clear_table
+from .machine import machine_name
 from .methods import MethodFileMissing, method_named, method_of
 from .protocol import (ABLATION_METHODS, LEGACY_EXECUTION, MAX_POOLS, OBJECTS_PER_SCENE, PROCEDURAL_SEED,
                        SCHEMA_VERSION, Protocol, execution_name, execution_of,
@@ -66,6 +67,7 @@ def run_round(task: RoundTask) -> dict:
             "settle_s": round(settle_s, 2), **record,
             "successes": sum(a["success"] for a in record["attempts"]),
             "sim_time_s": round(cell.world.time_s, 3), "cpu_s": round(time.process_time() - t0, 1),
+            "machine": machine_name(),
             "execution": {k: getattr(task.protocol, k) for k in LEGACY_EXECUTION}}
 
 
@@ -129,12 +131,16 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     # The hand of each method run there: a method's, not the run's setting, so it is kept
     # apart from the comparison (methods may join a run later; runs from before it have none).
     hands = {m: method_of(m, p).hand for m, p in methods.items()}
+    machines = [machine_name()]
     config_path = out / "config.json"
     if report_only and not config_path.exists():
         raise ValueError(f"{out} holds no benchmark run (no config.json): give the --out of a run")
     if config_path.exists():
         previous = json.loads(config_path.read_text())
         ran_on = previous.pop("hands", {})
+        # Not a setting: a run resumed on another machine type keeps its rounds (each
+        # round's record names its machine; the report lists them).
+        machines = sorted(set(previous.pop("machines", [])) | set(machines))
         for m in hands:
             if ran_on.get(m, hands[m]) != hands[m]:
                 raise ValueError(f"{out}: {m} ran there on the {ran_on[m]} hand, now it runs on the {hands[m]} "
@@ -154,7 +160,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         listed = out / "excluded_objects.json"  # absent only if the run was stopped within its first second
         excluded = json.loads(listed.read_text()) if listed.exists() else []
         return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
-    atomic_files.save_json(config_path, {**config, "hands": hands})
+    atomic_files.save_json(config_path, {**config, "hands": hands, "machines": machines})
 
     usable, excluded = object_pool(meshes_dir, only=only)
     atomic_files.save_json(out / "excluded_objects.json", list(excluded))
