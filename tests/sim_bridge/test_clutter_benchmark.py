@@ -12,7 +12,7 @@ import trimesh
 
 from gravgrasp_detector.perception import model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
-from sim_bridge.benchmark import clearing, protocol, report, sim_cell
+from sim_bridge.benchmark import clearing, methods, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
 from sim_bridge.benchmark.methods import gravgrasp as gravgrasp_method
 from sim_bridge.physics.objects import ObjectError
@@ -285,6 +285,24 @@ def test_a_ranking_variant_runs_its_base_methods_model_under_its_own_ranking(tmp
     assert [g.rank_key for g in by_expected] == pytest.approx(keys)  # the key is its own field, score_n stays N
     assert all(g.rank_key == g.score_n for g in by_score)
     assert [g.voxel_index for g in by_expected] != [g.voxel_index for g in by_score]
+
+
+def test_a_selection_variant_takes_only_sure_grasps_of_its_base_methods_model(tmp_path):
+    save_test_model(tmp_path / "gravgrasp.pt")
+    assert bench_rounds.resolve_methods(["ours_sure"], tmp_path) == {
+        "ours_sure": str((tmp_path / "gravgrasp.pt").resolve())}
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3
+    grid[10:30, 10:30, 12] = 0.5
+    p = protocol.Protocol(validness_threshold=0.0)
+    # The test model's validness is the same everywhere: sigmoid(bias), 0.88 and 0.92 here.
+    for bias, sure_expected in ((2.0, False), (2.5, True)):
+        path = save_test_model(tmp_path / f"{bias}.pt", validness_bias=bias)
+        every = methods.METHODS["ours"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
+        sure = methods.METHODS["ours_sure"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
+        assert every and all(g.rank_key == g.score_n for g in every)
+        voxels = [tuple(g.voxel_index) for g in sure]
+        assert voxels == ([tuple(g.voxel_index) for g in every] if sure_expected else [])
 
 
 def save_test_model(path, validness_bias=5.0, target="gravity-score"):

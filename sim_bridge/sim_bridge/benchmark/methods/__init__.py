@@ -25,6 +25,11 @@ METHODS = {m.name: m for m in (
     # paper's score among valid voxels; not run unless named in --methods
     gravgrasp.model_method("ours_expected", "gravgrasp.pt", "Ours ranked by validness x score",
                            rank_by="expected_score", file_of="ours"),
+    # a selection variant (issue 42's lever): Ours' score trusted only where the model is
+    # sure the grasp is valid; Ours' failed picks before the lift sat at validness
+    # 0.62-0.82, Binary's picks at a median 0.97 (doc/before-lift-diagnosis.md)
+    gravgrasp.model_method("ours_sure", "gravgrasp.pt", "Ours ranked by score among grasps of validness >= 0.9",
+                           validness_floor=0.9, file_of="ours"),
     # the baselines, with their published weights, on the hand they were made for
     Method("vgn", "panda", vgn.make_detector, vgn.MODEL_FILE, BASELINES,
            "VGN (Breyer et al. 2020), published weights, Panda hand"),
