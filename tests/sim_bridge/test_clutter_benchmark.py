@@ -141,7 +141,10 @@ def test_every_method_is_compared_to_binary_at_the_weights_both_ran():
     assert [(c["method"], c["mass_kg"]) for c in comparisons] == [("ours", 1.5)]
     assert comparisons[0]["diff"] == pytest.approx(0.5) and comparisons[0]["p_value"] < 0.05
     md = "\n".join(report.comparison_lines(comparisons))
-    assert "| ours | 1.5 | +50.0 pts |" in md
+    assert "| ours | 1.5 | 0 | — | — | — | +50.0 pts |" in md  # no scene rounds given: no paired figure
+    paired = [{"method": "ours", "mass_kg": 1.5, "scenes": 4, "diff": 0.375, "ci95": (0.1, 0.6), "p_value": 0.125}]
+    md = "\n".join(report.comparison_lines(report.with_paired(comparisons, paired)))
+    assert "| ours | 1.5 | 4 | +37.5 pts | +10.0 to +60.0 | 0.125 | +50.0 pts |" in md
     assert "No comparison" in report.comparison_lines([])[0]
 
 

@@ -23,19 +23,21 @@ def test_readme_table_is_what_the_command_prints():
         "README.md's results table differs: paste `python -m sim_bridge.benchmark.results_table` into it"
 
 
-def test_a_cell_holds_sr_interval_and_the_difference_to_binary(tmp_path):
+def test_a_cell_holds_sr_interval_and_the_paired_difference_to_binary(tmp_path):
     run = tmp_path / "sim_bridge/results/heldout_v4"
     run.mkdir(parents=True)
     (tmp_path / "sim_bridge/results/procedural_v4").mkdir(parents=True)
     rows = [{"method": "ours", "mass_kg": 1.5, "SR": 0.5, "SR_ci95": [0.3, 0.7], "successes": 10, "attempts": 20},
             {"method": "binary", "mass_kg": 1.5, "SR": 0.25, "SR_ci95": [0.11, 0.47], "successes": 5, "attempts": 20}]
-    comparisons = [{"method": "ours", "mass_kg": 1.5, "diff": 0.25, "p_value": 0.0952}]
+    # the pooled z test's figures stay in results.md; the cell shows the paired per-scene one
+    comparisons = [{"method": "ours", "mass_kg": 1.5, "diff": 0.25, "p_value": 0.0952,
+                    "paired": {"scenes": 16, "diff": 0.2813, "ci95": [0.1, 0.4], "p_value": 0.0312}}]
     for d in (run, tmp_path / "sim_bridge/results/procedural_v4"):
         (d / "results.json").write_text(json.dumps(rows))
         (d / "comparisons.json").write_text(json.dumps(comparisons))
     lines = results_table.table_lines(tmp_path)
     assert lines[0] == "| objects | method | SR 1.5 kg |"
-    assert lines[2] == "| held-out meshes | **Ours** | 50.0 % (10/20; 30–70), +25.0 pts, p = 0.095 |"
+    assert lines[2] == "| held-out meshes | **Ours** | 50.0 % (10/20; 30–70), +28.1 pts, p = 0.031 |"
     assert lines[3] == "| held-out meshes | Binary | 25.0 % (5/20; 11–47) |"
     assert len(lines) == 6
 

@@ -26,8 +26,10 @@ Protocol (one *round* = one method, one object weight, one scene):
 - A round ends when the table is clear, after 2 consecutive failures, when nothing is
   detected or no detected grasp passes the checks, or at 3 x objects attempts.
 - SR = successes / attempts, CR = successes / objects, pooled over rounds, with 95 %
-  Wilson intervals; each method's SR against Binary's at the same weight with a
-  two-proportion z test (printed `p_<method>_vs_binary_<kg>=`, results.md).
+  Wilson intervals; each method's SR against Binary's at the same weight, per scene and
+  paired (which decides: a sign-flip permutation test over the scenes' SR differences,
+  benchmark/paired.py, printed `p_paired_<method>_vs_binary_<kg>=`) and pooled (a
+  two-proportion z test over attempts, `p_<method>_vs_binary_<kg>=`); results.md.
 
 Methods are detectors with the hand that executes them (benchmark.methods.METHODS): the
 project's model files on the 2F-85 and `vgn`, VGN's published weights on the Panda hand
@@ -47,7 +49,9 @@ retrained model); everything runs in simulated time, so a seed gives the same at
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import pathlib
 import sys
 import time
 from concurrent.futures.process import BrokenProcessPool
@@ -58,7 +62,6 @@ from ..physics.objects import ObjectError
 from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
                        QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, weight_key)
-from .report import compare_to
 from .rounds import resolve_methods, run_benchmark
 
 # CLI
@@ -188,8 +191,10 @@ def main(argv=None) -> int:
               "; some rounds failed: rerun to retry them") if incomplete else ""), flush=True)
     for r in rows:
         print(f"CR_{r['method']}_{weight_key(r['mass_kg'])}={r['CR']:.2f}")
-    for c in compare_to(rows):
+    for c in json.loads((pathlib.Path(out) / "comparisons.json").read_text()):
         print(f"p_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
+        if c.get("paired"):
+            print(f"p_paired_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['paired']['p_value']:.3f}")
     for r in rows:
         print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
     return 1 if incomplete and not args.report else 0

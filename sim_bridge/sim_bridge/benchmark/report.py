@@ -16,6 +16,7 @@ from gravgrasp_detector import atomic_files
 from gravgrasp_detector.execution.executor import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
 from .clearing import success_rates
+from .paired import compare_paired
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, execution_name, execution_of, weight_key
 
 # statistics
@@ -116,7 +117,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
                    for r in rounds]})
     rows = summarize(rounds, plan)
     atomic_files.save_json(out / "results.json", rows)
-    comparisons = compare_to(rows)
+    comparisons = with_paired(compare_to(rows), compare_paired(rounds))
     atomic_files.save_json(out / "comparisons.json", comparisons)
     objects = (f"procedural (seed {PROCEDURAL_SEED})" if not meshes_dir else f"meshes in {os.path.relpath(os.path.realpath(meshes_dir))}"
                + (f", only the {len(only)} listed in --only" if only is not None else ""))
@@ -150,18 +151,33 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     return rows
 
 
+def with_paired(comparisons: list, paired: list) -> list:
+    """The pooled comparisons, each with its per-scene paired one under "paired" (None
+    where no scene has both methods' SR)."""
+    by_key = {(c["method"], c["mass_kg"]): c for c in paired}
+    return [{**c, "paired": by_key.get((c["method"], c["mass_kg"]))} for c in comparisons]
+
+
 def comparison_lines(comparisons) -> list:
-    """Markdown table: SR difference to Binary with its interval and p value."""
+    """Markdown table: SR difference to Binary, per scene paired (which decides) and pooled."""
     if not comparisons:
         return ["No comparison with binary (it did not run at these weights)."]
-    lines = ["SR against binary at the same weight (two-proportion z test, two-sided; the interval is "
-             "Newcombe's, 95 %):", "", "| method | weight [kg] | SR − SR binary | 95 % CI | p |",
-             "| --- | --- | --- | --- | --- |"]
+    lines = ["SR against binary at the same weight. **Per scene, paired** (this decides: attempts in a round "
+             "are not independent, and both methods ran the same scenes): the mean over scenes of the SR "
+             "difference, a paired bootstrap 95 % interval, and a sign-flip permutation test (benchmark/paired.py). "
+             "Pooled, beside it: the two-proportion z test over attempts, with Newcombe's interval.", "",
+             "| method | weight [kg] | scenes | per scene: SR − SR binary | 95 % CI | p | "
+             "pooled: SR − SR binary | 95 % CI | p |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+
+    def cells(c):
+        if c is None or math.isnan(c["diff"]):
+            return ["—", "—", "—"]
+        return [f"{100 * c['diff']:+.1f} pts", f"{100 * c['ci95'][0]:+.1f} to {100 * c['ci95'][1]:+.1f}",
+                f"{c['p_value']:.3f}"]
     for c in comparisons:
-        diff = "—" if math.isnan(c["diff"]) else f"{100 * c['diff']:+.1f} pts"
-        ci = "—" if math.isnan(c["ci95"][0]) else f"{100 * c['ci95'][0]:+.1f} to {100 * c['ci95'][1]:+.1f}"
-        p = "—" if math.isnan(c["p_value"]) else f"{c['p_value']:.3f}"
-        lines.append(f"| {c['method']} | {c['mass_kg']:g} | {diff} | {ci} | {p} |")
+        pc = c.get("paired")
+        lines.append(f"| {c['method']} | {c['mass_kg']:g} | {pc['scenes'] if pc else 0} | "
+                     + " | ".join(cells(pc) + cells(c)) + " |")
     return lines
 
 

@@ -3,7 +3,7 @@
 `python -m sim_bridge.benchmark.results_table` reads the shipped models' benchmark runs
 (`results.json` and `comparisons.json`, which `benchmark --report` writes) and prints one
 Markdown table: per run and method, SR at each weight with its 95 % Wilson interval, and
-the difference to Binary with its two-sided p value. tests/system/test_markdown_links.py
+the mean per-scene difference to Binary with its paired sign-flip p value. tests/system/test_markdown_links.py
 checks that README.md holds exactly this output.
 """
 
@@ -28,10 +28,13 @@ def _pct(x: float) -> str:
 
 
 def _cell(row: dict, comparison: dict | None) -> str:
+    """SR (successes/attempts; Wilson interval), then the difference to Binary per scene,
+    paired, with its p value (the test that decides: benchmark/paired.py)."""
     lo, hi = row["SR_ci95"]
     cell = f"{_pct(row['SR'])} ({row['successes']}/{row['attempts']}; {100 * lo:.0f}–{100 * hi:.0f})"
-    if comparison is not None and not math.isnan(comparison["p_value"]):
-        cell += f", {100 * comparison['diff']:+.1f} pts, p = {comparison['p_value']:.2g}"
+    paired = (comparison or {}).get("paired")
+    if paired and not math.isnan(paired["p_value"]):
+        cell += f", {100 * paired['diff']:+.1f} pts, p = {paired['p_value']:.2g}"
     return cell.replace("-", "−")
 
 
