@@ -102,13 +102,17 @@ def main(argv=None):
     if args.runs < 50:
         parser.error("--runs must be at least 50")
 
+    # Ranked as the detect node ranks this model: a binary model by validness (its score
+    # head is untrained), a score model by its score.
     if os.path.exists(args.model):
         model, meta = model_file.load_model(args.model)
         model_note = f"{args.model} ({meta.get('training_data') or 'no training summary'})"
+        ranking = {"rank_by": model_file.ranking(meta), "has_score": model_file.has_score(meta)}
     else:
         torch.manual_seed(0)
         model = networks.GraspNet().eval()
         model_note = f"UNTRAINED (seed 0; {args.model} does not exist): rankings are near-ties"
+        ranking = {}
     frames = read_frames(args.bag)
     grids = real_volumes(frames)
     voxel_size = TSDFVolume().voxel_size_m
@@ -116,14 +120,15 @@ def main(argv=None):
     print(f"machine={cpu_name()}, {os.cpu_count()} cores, torch threads {torch.get_num_threads()}, "
           f"bf16 native {detection.bf16_available()}, AMX {detection.bf16_faster()}, load average {os.getloadavg()[0]:.2f}")
     print(f"versions=python {platform.python_version()}, torch {torch.__version__}, open3d {open3d.__version__}")
-    print(f"model={model_note}; validness threshold {args.validness_threshold}")
+    print(f"model={model_note}; validness threshold {args.validness_threshold}; "
+          f"ranked by {ranking.get('rank_by', 'score')}")
     print(f"volumes={len(grids)} from {args.bag}")
 
     results = {}
     for precision in ("fp32", "bf16") if detection.bf16_available() else ("fp32",):
         cycle = iter(range(10**9))
         options = detection.DetectionOptions(validness_threshold=args.validness_threshold,
-                                             max_grasps=args.max_grasps, precision=precision)
+                                             max_grasps=args.max_grasps, precision=precision, **ranking)
 
         def detect():
             grid = grids[next(cycle) % len(grids)]
@@ -150,7 +155,7 @@ def main(argv=None):
             top = {}
             for precision in ("fp32", "bf16"):
                 options = detection.DetectionOptions(validness_threshold=args.validness_threshold,
-                                                     max_grasps=10, precision=precision)
+                                                     max_grasps=10, precision=precision, **ranking)
                 grasps = detection.detect_grasps(model, grid, voxel_size, options=options)
                 top[precision] = [g.voxel_index for g in grasps]
             found.append(len(top["fp32"]))
