@@ -165,10 +165,10 @@ class SimCell:
         return [s.name for s in self.world.object_states() if not s.out_of_workspace]
 
     def remove_fallen(self) -> list:
-        """Objects that left the cube since the last call. They are not removed from the
-        world: SimWorld.remove_object on a body still falling (a sphere that rolled off
-        the table, at 14 m/s) made a later Drake step segfault; off the table they touch
-        nothing, and objects_on_table leaves them out."""
+        """Objects that left the cube since the last call. The world takes those gone past
+        the table out of the physics itself (world.out_of_play: left falling, they spun up
+        until Drake's poses went non-finite); those still on the table outside the cube
+        stay. objects_on_table leaves them all out."""
         fallen = [s.name for s in self.world.object_states() if s.out_of_workspace and s.name not in self._fallen]
         self._fallen.update(fallen)
         return fallen

@@ -1,7 +1,7 @@
 """The cell as one Drake diagram: plant (gravity, SAP, the paper's contact parameters),
-scene graph, the table, a parking shelf for removed objects, the floating hand (the
-2F-85, or another of physics.hands: WorldSettings.hand) and its finger servo
-(physics.actuators.FingerServoSystem, driven as finger_drives says)."""
+scene graph, the table, the floating hand (the 2F-85, or another of physics.hands:
+WorldSettings.hand) and its finger servo (physics.actuators.FingerServoSystem, driven as
+finger_drives says)."""
 
 from __future__ import annotations
 
@@ -18,8 +18,6 @@ from ..physics.contact import proximity_properties
 from ..physics.scenes import TABLE_FRICTION, TABLE_HEIGHT_M, VOLUME_SIZE_M
 from .config import WorldSettings
 from .finger_drives import DRIVES
-
-PARKING_SHELF_M = (5.0, 5.0, -5.0)  # top surface of the shelf removed objects go to (task frame)
 
 
 @dataclass
@@ -80,9 +78,8 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
     plant.RegisterCollisionGeometry(plant.world_body(), X_table, Box(1.0, 1.0, 0.05), "table", table_props)
     plant.RegisterVisualGeometry(plant.world_body(), X_table, Box(1.0, 1.0, 0.05), "table_visual",
                                  [0.6, 0.6, 0.6, 1.0])
-    # Where removed objects are parked: a shelf far out of view (no visual geometry).
-    X_shelf = RigidTransform([PARKING_SHELF_M[0] + 10.0, PARKING_SHELF_M[1], PARKING_SHELF_M[2] - 0.5])
-    plant.RegisterCollisionGeometry(plant.world_body(), X_shelf, Box(21.0, 2.0, 1.0), "parking_shelf", table_props)
+    # No shelf for removed objects and no floor: objects out of play are taken out of the
+    # physics (out_of_play).
     spec, drive = hand_spec(settings.hand), DRIVES[settings.hand]
     hand = spec.add(plant, scene_graph, props, True, s.contact_model == "point", settings.baselines_dir or None)
     bodies = [spec.add_to_plant(plant, name=name, proximity_properties=props) for name, spec in objects]

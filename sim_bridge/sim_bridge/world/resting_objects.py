@@ -105,7 +105,7 @@ class RestingObjects:
             self._freeze(plant_context)
 
     def moved(self, plant_context, name: str) -> None:
-        """An object was put somewhere by hand (removed to the shelf): if asleep, it stays
+        """An object was put somewhere by hand (removed: out_of_play): if asleep, it stays
         asleep where it is now."""
         for i, (n, body, *_rest) in enumerate(self._objects):
             if n == name and i in self._asleep:
@@ -188,7 +188,7 @@ class RestingObjects:
         return np.array(centres), self._hand_radii
 
     def _apply_filter(self):
-        """One transient filter: no contact within {asleep objects, table, shelf}."""
+        """One transient filter: no contact within {asleep objects, table}."""
         if self._filter_id is not None:
             self._filters.RemoveDeclaration(self._filter_id)
             self._filter_id = None

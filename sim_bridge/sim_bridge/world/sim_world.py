@@ -28,7 +28,9 @@ relieves, nor a shake by the weight already in the hand.
 SimWorld is the one object the rest uses; it holds the Drake simulator and the scene,
 and hands the parts to: `fingers.Fingers` (the finger servo and what the gripper
 reports), `contacts` (hand contacts, object states), `camera` (depth images),
-`scene_objects` (drawing a scene), `motion` (TCP motions, reach).
+`scene_objects` (drawing a scene), `motion` (TCP motions, reach), `out_of_play` (removed
+objects and those gone past the table, taken out of the physics), `resting_objects`
+(freezing objects at rest).
 
 Thread safety: every public method takes one lock (`SimWorld.lock`), so a `RealTimeRunner` thread can
 step the world while other threads command it and read from it.
@@ -51,9 +53,10 @@ from pydrake.systems.analysis import Simulator
 from .camera import SceneMeshes, camera_intrinsics, camera_pose, render_depth
 from .config import R_TOP_DOWN, SceneConfig, WorldSettings, pose
 from .contacts import finger_squeeze_n, hand_contacts, object_states
-from .diagram import PARKING_SHELF_M, build_world_diagram
+from .diagram import build_world_diagram
 from .fingers import Fingers
 from .motion import Motion, check_reachable
+from .out_of_play import OutOfPlay
 from .parallel_grip import GripVerdict, judge_parallel_grip
 from .resting_objects import RestingObjects
 from .scene_objects import draw_scene
@@ -74,6 +77,7 @@ class WorldCheckpoint:
     fingers: dict
     resting: object
     resting_state: object
+    out_of_play: tuple
 
 class SimWorld:
     """A Drake world stepped by the caller (`advance`) or by a `RealTimeRunner` thread.
@@ -125,6 +129,7 @@ class SimWorld:
             self._fingers = Fingers(self._model, self.simulator, self.settings.contact.grip_force_n)
             self._resting = None
             self.freeze_resting_objects(self.settings.freeze_resting_objects)
+            self._out_of_play = OutOfPlay(self._model, self._scene_graph_context(), self.names, self._hull_vertices)
             self.simulator.Initialize()
             self._advance_locked(self.settings.settle_time_s)
             names = list(self.names)
@@ -138,13 +143,15 @@ class SimWorld:
     def _plant_context(self):
         return self._model.plant.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
 
+    def _scene_graph_context(self):
+        return self._model.scene_graph.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
+
     def freeze_resting_objects(self, on: bool) -> None:
         """Freeze objects at rest away from the hand from now on (`resting_objects`), or
         wake them all and stop."""
         with self.lock:
             if on and self._resting is None:
-                sg_context = self._model.scene_graph.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
-                self._resting = RestingObjects(self._model, sg_context, self.names, self._hull_vertices)
+                self._resting = RestingObjects(self._model, self._scene_graph_context(), self.names, self._hull_vertices)
             elif not on and self._resting is not None:
                 self._resting.wake_all()
                 self._resting = None
@@ -152,13 +159,14 @@ class SimWorld:
     def checkpoint(self) -> "WorldCheckpoint":
         """Everything the world's next steps depend on, to run them again from here
         (`rewind`): the Drake context (object states; SceneGraph's collision filters), the
-        hand's hold pose and motion, the finger servo, the removed and the frozen objects."""
+        hand's hold pose and motion, the finger servo, the removed, frozen and out-of-play objects."""
         with self.lock:
             resting = self._resting
             return WorldCheckpoint(self.simulator.get_context().Clone(),
                                    {k: copy.copy(getattr(self, k)) for k in ("_hold", "_motion", "_removed")},
                                    copy.copy(vars(self._fingers)),
-                                   resting, resting.saved() if resting is not None else None)
+                                   resting, resting.saved() if resting is not None else None,
+                                   self._out_of_play.saved())
 
     def rewind(self, checkpoint: "WorldCheckpoint") -> None:
         """Back to the state `checkpoint` saved, simulated time included."""
@@ -170,8 +178,8 @@ class SimWorld:
             vars(self._fingers).update(copy.copy(checkpoint.fingers))
             self._resting = checkpoint.resting
             if self._resting is not None:
-                sg_context = self._model.scene_graph.GetMyMutableContextFromRoot(self.simulator.get_mutable_context())
-                self._resting.restore(checkpoint.resting_state, sg_context)
+                self._resting.restore(checkpoint.resting_state, self._scene_graph_context())
+            self._out_of_play.restore(checkpoint.out_of_play, self._scene_graph_context())
 
     def asleep_objects(self) -> list:
         """Names of the objects frozen now (none unless freezing is on)."""
@@ -228,6 +236,7 @@ class SimWorld:
         else:
             self._set_hand_state(self._hold, np.zeros(3), np.zeros(3))
             self.simulator.AdvanceTo(t + dt)
+        self._out_of_play.after_step(self._plant_context())
         if self._resting is not None:
             self._resting.after_step(self._plant_context(), self.time_s)
         self._fingers.update_stall()
@@ -405,15 +414,13 @@ class SimWorld:
 
     def remove_object(self, name: str) -> None:
         """Take an object out of the scene (the clutter-removal benchmark does this after
-        a successful grasp): it is put down on a shelf far out of view, 0.5 m from the
-        previous one. (Locking the body instead made a later SAP step crash in libdrake.)"""
+        a successful grasp): out of the physics, held far out of view (`out_of_play`; it
+        was once dropped onto a shelf there, which threw light boxes off it). (Locking the
+        body instead made a later SAP step crash in libdrake.)"""
         with self.lock:
-            body = self._body(name)
+            self._body(name)  # one clear error for a name that is not there
             pc = self._plant_context()
-            k = len(self._removed)
-            x, y, z = PARKING_SHELF_M
-            self._model.plant.SetFreeBodyPose(pc, body, _rigid(pose(p=(x + 0.5 * k, y, z + 0.2))))
-            self._model.plant.SetFreeBodySpatialVelocity(pc, body, _zero_velocity())
+            self._out_of_play.take_out(pc, name, "removed")
             if self._resting is not None:
                 self._resting.moved(pc, name)
             self._removed.add(name)
@@ -452,7 +459,3 @@ def _cross(a, b):
 
 def _rigid(X):
     return RigidTransform(np.asarray(X, float))
-
-
-def _zero_velocity():
-    return SpatialVelocity(np.zeros(3), np.zeros(3))
