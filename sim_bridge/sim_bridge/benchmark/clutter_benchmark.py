@@ -21,8 +21,9 @@ Protocol (one *round* = one method, one object weight, one scene):
   0.15 m, gOBJ check) -> hold 1.0 s, then shake (3 cm up/down, then 3 cm along x and
   back, min-jerk at 0.25 m/s: peak 3.4 m/s², up to 1.35 g on the grip vertically) ->
   success iff an object is still between both fingers and >= 5 cm above the table.
-  Lifted objects are removed; objects that leave the cube are `fell_off` (not cleared)
-  and stay in the world (removing a falling body made Drake segfault later).
+  Lifted objects are removed; objects that leave the cube are `fell_off` (not cleared);
+  removed objects and those gone past the table are taken out of the physics
+  (world.out_of_play: left to fall, they once made Drake's poses non-finite).
 - A round ends when the table is clear, after 2 consecutive failures, when nothing is
   detected or no detected grasp passes the checks, or at 3 x objects attempts.
 - SR = successes / attempts, CR = successes / objects, pooled over rounds, with 95 %
@@ -44,6 +45,9 @@ Engineering: one task per round through parallel.run_tasks (process pool or Dask
 each round's result is written atomically to rounds/<method>/<weight>/<scene>.json
 with the model file's sha256, so a rerun skips finished rounds (and redoes those of a
 retrained model); everything runs in simulated time, so a seed gives the same attempts.
+A round Drake cannot simulate (a RuntimeError) fails the same way every time: it is
+recorded once in failed_rounds.json, listed in results.md and not rerun
+(`--retry-failed` runs it again).
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ from concurrent.futures.process import BrokenProcessPool
 from ..datagen.object_sources import read_name_list
 from ..physics import baseline_files
 from ..physics.objects import ObjectError
+from . import failed_rounds
 from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
                        QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, weight_key)
@@ -124,6 +129,8 @@ def main(argv=None) -> int:
     p.add_argument("--report", action="store_true",
                    help="run nothing: write results.md etc. from the rounds finished so far in --out (same "
                         "options as the run; safe while that run goes on, which rewrites them at its end)")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="run again the rounds Drake could not simulate (failed_rounds.json; not rerun otherwise)")
     args = p.parse_args(argv)
 
     n_scenes = args.scenes or (2 if args.quick else 10)
@@ -177,7 +184,7 @@ def main(argv=None) -> int:
         rows = run_benchmark(out, methods, weights, n_scenes, args.seed, args.meshes, protocol,
                              args.workers, args.scheduler, progress=not args.no_progress,
                              ablation_weights_kg=ablation, only_meshes=only, report_only=args.report,
-                             baselines_dir=args.baselines)
+                             baselines_dir=args.baselines, retry_failed=args.retry_failed)
     except (ObjectError, ValueError) as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2
@@ -185,10 +192,13 @@ def main(argv=None) -> int:
         print(f"benchmark: worker processes keep dying ({e}); finished rounds are kept: rerun the same "
               "command to resume", file=sys.stderr)
         return 3
-    incomplete = any(r["rounds"] < n_scenes for r in rows)
+    missing = sum(n_scenes - r["rounds"] for r in rows)
+    gave_up = sum(1 for method, *_ in failed_rounds.load(out) if method in methods)
     print(f"benchmark: {out}/results.md, attempts.json, sr_cr_vs_weight.png ({time.monotonic() - t0:.0f} s)"
+          + (f"; {gave_up} rounds Drake could not simulate, listed in results.md (--retry-failed reruns them)"
+             if gave_up else "")
           + (("; rounds not finished yet: an interim report" if args.report else
-              "; some rounds failed: rerun to retry them") if incomplete else ""), flush=True)
+              "; some rounds failed: rerun to retry them") if missing > gave_up else ""), flush=True)
     for r in rows:
         print(f"CR_{r['method']}_{weight_key(r['mass_kg'])}={r['CR']:.2f}")
     for c in json.loads((pathlib.Path(out) / "comparisons.json").read_text()):
@@ -197,7 +207,7 @@ def main(argv=None) -> int:
             print(f"p_paired_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['paired']['p_value']:.3f}")
     for r in rows:
         print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
-    return 1 if incomplete and not args.report else 0
+    return 1 if missing and not args.report else 0
 
 
 if __name__ == "__main__":

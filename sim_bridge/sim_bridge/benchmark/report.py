@@ -15,6 +15,7 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.execution.executor import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
+from . import failed_rounds
 from .clearing import success_rates
 from .paired import compare_paired
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, execution_name, execution_of, weight_key
@@ -85,7 +86,9 @@ def summarize(rounds: list, plan: dict) -> list:
     return rows
 
 
-def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=None) -> list:
+def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=None, failed=None) -> list:
+    """results.md, results.json, comparisons.json, attempts.json and the plot from the rounds
+    on disk; `failed`: failed_rounds.load's records (listed, not counted)."""
     rounds = []
     for method, weights_kg in plan.items():
         for w in weights_kg:
@@ -142,6 +145,10 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     if protocol.close_on_contact_within_m > 0:
         lines += ["", *guarded_lines(rounds, plan, protocol.close_on_contact_within_m)]
     lines += ["", *end_lines(rounds, plan), ""]
+    gave_up = [r for r in (failed or {}).values() if r["method"] in plan and r["model_sha256"] == shas[r["method"]]
+               and r["mass_kg"] in plan[r["method"]] and r["scene_id"] in ids]
+    if gave_up:
+        lines += [*failed_rounds.report_lines(gave_up), ""]
     lines.append(f"Excluded objects ({len(excluded)}): " + (", ".join(
         f"{e['name']} ({e.get('min_width_mm', '?')} mm)" if "min_width_mm" in e else f"{e['name']} ({e['reason']})"
         for e in excluded) or "none"))

@@ -19,6 +19,7 @@ from gravgrasp_detector.perception.model_file import file_sha256
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
 from ..world import WorldSettings
+from . import failed_rounds
 from .clearing import clear_table
 from .machine import machine_name
 from .methods import MethodFileMissing, method_named, method_of
@@ -107,13 +108,15 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
 
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
-                  ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None) -> list:
+                  ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None,
+                  retry_failed=False) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
     `methods`: {name: its file's path} (resolve_methods); `baselines_dir`: where the
     Panda hand's files are (None: physics.baseline_files' default); ABLATION_METHODS run at `ablation_weights_kg` if given;
     `only_meshes`: names of the meshes in `meshes_dir` to draw scenes from (None: all);
     `report_only`: run nothing, write the outputs of the rounds finished so far (an interim
-    look at a run that is still going, in the same directory)."""
+    look at a run that is still going, in the same directory); `retry_failed`: run again the rounds
+    Drake could not simulate before (failed_rounds; else they are not rerun)."""
     only = tuple(sorted(only_meshes)) if only_meshes is not None else None
     plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
     out = pathlib.Path(out_dir)
@@ -156,10 +159,11 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
                              "use another --out, or delete it to start over")
     shas = {m: file_sha256(p) for m, p in methods.items()}
     ids = scene_ids(n_scenes)
+    failed = failed_rounds.load(out)
     if report_only:
         listed = out / "excluded_objects.json"  # absent only if the run was stopped within its first second
         excluded = json.loads(listed.read_text()) if listed.exists() else []
-        return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
+        return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed)
     atomic_files.save_json(config_path, {**config, "hands": hands, "machines": machines})
 
     usable, excluded = object_pool(meshes_dir, only=only)
@@ -179,17 +183,26 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
 
     def done(method, w, sid):
         rp = round_path(method, w, sid)
-        return rp.exists() and json.loads(rp.read_text()).get("model_sha256") == shas[method]
+        if rp.exists() and json.loads(rp.read_text()).get("model_sha256") == shas[method]:
+            return True
+        gave_up = failed.get(failed_rounds.key(method, w, sid), {}).get("model_sha256") == shas[method]
+        return gave_up and not retry_failed
 
     def on_scene(task, scene):
         atomic_files.save_json(out / "scenes" / f"{task.scene_id}.json", scene)
         scenes[task.scene_id] = scene
 
     def on_round(task, result):
+        k = failed_rounds.key(task.method, task.mass_kg, task.scene["scene_id"])
         if "error" in result:
             errors.append((task, result["error"]))
+            if result.get("simulation_failed"):  # fails the same way on every rerun: recorded once
+                failed[k] = failed_rounds.record(*k, task.model_sha256, result["error"], machine_name())
+                failed_rounds.save(out, failed)
         else:
             atomic_files.save_json(round_path(task.method, task.mass_kg, task.scene["scene_id"]), result)
+            if failed.pop(k, None) is not None:  # retried, and it ran this time
+                failed_rounds.save(out, failed)
 
     errors = []
     # A native crash (Drake) kills its worker and breaks the whole pool: finished rounds
@@ -214,15 +227,18 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
             note(f"benchmark: a worker process died ({e}); continuing with a new pool")
     for task, message in errors:
         note(f"benchmark: round {task.method} {task.mass_kg} kg {task.scene['scene_id']} failed: {message}")
-    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only)
+    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed)
 
 
 def _guarded_round(task):
-    """A round that raises is reported (and retried by the next run), not fatal to the others."""
+    """A round that raises is reported, not fatal to the others. A RuntimeError (Drake's:
+    the simulation itself failed) is recorded once (failed_rounds); any other error is
+    retried by the next run."""
     try:
         return run_round(task)
     except Exception as e:  # Drake, a bad object, a model that does not fit the volume
-        return {"error": f"{type(e).__name__}: {str(e).strip().splitlines()[0][:300] if str(e).strip() else ''}"}
+        return {"error": f"{type(e).__name__}: {str(e).strip().splitlines()[0][:300] if str(e).strip() else ''}",
+                "simulation_failed": isinstance(e, RuntimeError)}
 
 
 class _InProcess:
