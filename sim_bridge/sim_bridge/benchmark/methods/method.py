@@ -44,6 +44,9 @@ class Method:
     # A variant runs another method's file ("ours_expected": Ours' model ranked otherwise):
     # that method's --model NAME=PATH moves it along.
     file_of: str = ""
+    # Other files `make` reads from beside its file (the same directory; VN-EdgeGraspNet's
+    # four checkpoints): `locate` checks them too. Only `file`'s sha256 names the detector.
+    companions: tuple = ()
 
     def __post_init__(self):
         if self.where not in (MODELS, BASELINES):
@@ -69,4 +72,10 @@ class Method:
             path = self.default_path(models_dir)
         if not path.is_file():
             raise MethodFileMissing(f"model file {path} not found")
+        missing = [str(path.parent / pathlib.PurePosixPath(c).name) for c in self.companions
+                   if not (path.parent / pathlib.PurePosixPath(c).name).is_file()]
+        if missing:
+            source = baseline_files.SOURCES.get(pathlib.PurePosixPath(self.file).parts[0], "where its file came from")
+            raise MethodFileMissing(f"{', '.join(missing)} not found beside {path.name}: get "
+                                    f"{'them' if len(missing) > 1 else 'it'} from {source}")
         return path.resolve()

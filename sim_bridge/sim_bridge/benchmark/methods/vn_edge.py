@@ -246,27 +246,32 @@ def make_vn_edge_detector(net: VNEdgeNet, options=EdgeOptions()):
 # the benchmark's method (methods.METHODS["vn_edge"])
 
 
+def clearing_grasps(grasps, tsdf, max_grasps: int) -> list:
+    """The first max_grasps of `grasps` (best first) whose open Panda hand, swept from the
+    pre-grasp, holds no occupied voxel of `tsdf` (the executor's own check): checked 64
+    at a time, as the authors' edges run to 1500."""
+    grid, voxel_size_m, origin = tsdf
+    points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m, np.asarray(origin))
+    cleared = []
+    for start in range(0, len(grasps), 64):
+        batch = grasps[start:start + 64]
+        hit = hand_clearance.hands_collide(np.array([g.pose for g in batch]), points, voxel_size_m,
+                                           DetectionOptions.pregrasp_distance_m, HAND_GEOMETRY["panda"])
+        cleared += [g for g, h in zip(batch, hit) if not h]
+        if len(cleared) >= max_grasps:
+            break
+    return cleared[:max_grasps]
+
+
 def make_detector(path, protocol) -> Detector:
     """VN-EdgeGraspNet with the checkpoints at `path` (MODEL_FILE, the others beside it)
     as the benchmark's Detector, reading edge_volume(), under the protocol's max_grasps
-    and, when on, its clear_hand (the Panda's open hand swept from the pre-grasp clears
-    the view). Its score is a success probability: target "binary"."""
+    and, when on, its clear_hand (clearing_grasps). Its score is a success probability:
+    target "binary"."""
     net = load_vn_edge(path)
     if not protocol.clear_hand:
         return Detector(make_vn_edge_detector(net, EdgeOptions(max_grasps=protocol.max_grasps)), edge_volume(),
                         "binary")
-    detect_all, hand = make_vn_edge_detector(net), HAND_GEOMETRY["panda"]
-
-    def detect(tsdf):
-        grasps, cleared = detect_all(tsdf), []
-        grid, voxel_size_m, origin = tsdf
-        points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m, np.asarray(origin))
-        for start in range(0, len(grasps), 64):  # best first, until max_grasps clear the view
-            batch = grasps[start:start + 64]
-            hit = hand_clearance.hands_collide(np.array([g.pose for g in batch]), points, voxel_size_m,
-                                               DetectionOptions.pregrasp_distance_m, hand)
-            cleared += [g for g, h in zip(batch, hit) if not h]
-            if len(cleared) >= protocol.max_grasps:
-                break
-        return cleared[:protocol.max_grasps]
-    return Detector(detect, edge_volume(), "binary")
+    detect_all = make_vn_edge_detector(net)
+    return Detector(lambda tsdf: clearing_grasps(detect_all(tsdf), tsdf, protocol.max_grasps), edge_volume(),
+                    "binary")
