@@ -14,9 +14,10 @@ closed limit, where the joint limit stops them).
 Frames (SI units), VGN's (simulation.py): the hand frame is the URDF's panda_hand frame
 (the flange side of the hand), z along the approach, the fingers close along y (the
 left finger on +y). The TCP is `HAND_TO_TCP_M` out along z, no rotation: VGN puts it
-0.022 m from PyBullet's body frame, which is the hand's centre of mass (0.04 m up z),
-and VN-EdgeGraspNet at 0.0625 m from the URDF frame. The fingertips are `FINGER_DEPTH_M`
-beyond the TCP.
+0.022 m from PyBullet's body frame, which is the hand's centre of mass (0.04 m up z).
+VN-EdgeGraspNet's grasp pose is that body frame itself (its T_body_tcp is the identity),
+0.022 m short of this TCP (benchmark/methods/vn_edge.py moves it). The fingertips are
+`FINGER_DEPTH_M` beyond the TCP.
 """
 
 from __future__ import annotations
