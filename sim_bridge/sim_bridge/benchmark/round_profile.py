@@ -1,5 +1,6 @@
-"""Where a clutter round's CPU goes: one committed round replayed, its CPU and simulated
-time split by phase (each phase's own, without the phases inside it).
+"""Where a clutter round's CPU goes: one committed round replayed (or one with no record,
+e.g. one Drake could not simulate, run from its scene), its CPU and simulated time split
+by phase (each phase's own, without the phases inside it).
 
     python -m sim_bridge.benchmark.round_profile --results sim_bridge/results/heldout_v4_a47ba91 \\
         --method binary --weight 1.5 --scene packed_001 [--execution fast] [--cprofile 20]
@@ -63,8 +64,9 @@ def profile_round(results_dir, method, mass_kg, scene_id, execution=None, models
     """-> (rows [(phase, cpu_s, sim_s, calls)], outcomes, total cpu_s, cProfile text or '')."""
     d = pathlib.Path(results_dir)
     rf = d / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json"
-    if not rf.is_file():
-        raise ValueError(f"no committed round {rf}")
+    # A round without a record (one Drake could not simulate: failed_rounds) runs from its scene.
+    if not rf.is_file() and not (d / "scenes" / f"{scene_id}.json").is_file():
+        raise ValueError(f"no committed round {rf}, and no scene {scene_id} in {d / 'scenes'}")
     config = json.loads((d / "config.json").read_text())
     protocol = Protocol(**config["protocol"])
     if execution:
