@@ -131,12 +131,12 @@ class VGNNet(nn.Module):
         return torch.sigmoid(self.conv_qual(x)), F.normalize(self.conv_rot(x), dim=1), self.conv_width(x)
 
 
-def state_dict_mismatches(state, expected) -> list:
+def state_dict_mismatches(state, expected, whose: str = "VGN's") -> list:
     """Every way `state` differs from `expected` (name -> tensor): missing, unexpected and
-    mis-shaped tensors, one entry each."""
+    mis-shaped tensors, one entry each (`whose`: the model the expected shapes are)."""
     problems = [f"missing {name} {tuple(t.shape)}" for name, t in expected.items() if name not in state]
     problems += [f"unexpected {name}" for name in state if name not in expected]
-    problems += [f"{name} is {tuple(state[name].shape)}, VGN's is {tuple(t.shape)}"
+    problems += [f"{name} is {tuple(state[name].shape)}, {whose} is {tuple(t.shape)}"
                  for name, t in expected.items()
                  if name in state and tuple(getattr(state[name], "shape", ())) != tuple(t.shape)]
     return problems

@@ -36,6 +36,7 @@ import torch
 from torch import nn
 
 from ...physics.baseline_files import SOURCES, BaselineFileMissing, baselines_dir
+from .vgn import state_dict_mismatches
 
 CHECKPOINT_DIR = "vn_edge_grasp"  # in the baselines directory
 EPOCH = 105  # the published checkpoints
@@ -249,12 +250,7 @@ def checkpoint_paths(path=None, baselines=None) -> dict:
 
 def checkpoint_mismatches(state, expected) -> list:
     """Every way `state` differs from `expected` (name -> tensor), one entry each."""
-    problems = [f"missing {name} {tuple(t.shape)}" for name, t in expected.items() if name not in state]
-    problems += [f"unexpected {name}" for name in state if name not in expected]
-    problems += [f"{name} is {tuple(state[name].shape)}, VN-EdgeGraspNet's is {tuple(t.shape)}"
-                 for name, t in expected.items()
-                 if name in state and tuple(getattr(state[name], "shape", ())) != tuple(t.shape)]
-    return problems
+    return state_dict_mismatches(state, expected, "VN-EdgeGraspNet's")
 
 
 def _read_state(path: pathlib.Path):
