@@ -131,6 +131,19 @@ class VGNNet(nn.Module):
         return torch.sigmoid(self.conv_qual(x)), F.normalize(self.conv_rot(x), dim=1), self.conv_width(x)
 
 
+def read_state_dict(path, error, where: str):
+    """The tensors of the file at `path`; `error` (an exception class) with one sentence
+    ending in `where` (where the right file is) if it is not a state dict."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # zip, pickle or unsafe-type errors all mean "not a state dict"
+        raise error(f"{path} is not a PyTorch state dict (torch.load, tensors only, raised "
+                    f"{type(e).__name__}); {where}") from e
+    if not isinstance(state, collections.abc.Mapping):
+        raise error(f"{path} holds a {type(state).__name__}, not a state dict; {where}")
+    return state
+
+
 def state_dict_mismatches(state, expected, whose: str = "VGN's") -> list:
     """Every way `state` differs from `expected` (name -> tensor): missing, unexpected and
     mis-shaped tensors, one entry each (`whose`: the model the expected shapes are)."""
@@ -153,13 +166,7 @@ def load_vgn(path=None, baselines_dir=None) -> VGNNet:
     if not path.is_file():
         raise BaselineFileMissing(f"VGN model file {path} not found: get it from {SOURCES['vgn']}, or leave the "
                                   f"path out to read {MODEL_FILE} from the baselines directory (--baselines DIR)")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # zip, pickle or unsafe-type errors all mean "not a state dict"
-        raise VGNModelError(f"{path} is not a PyTorch state dict (torch.load, tensors only, raised "
-                            f"{type(e).__name__}); VGN's model is {SOURCES['vgn']}") from e
-    if not isinstance(state, collections.abc.Mapping):
-        raise VGNModelError(f"{path} holds a {type(state).__name__}, not a state dict; VGN's model is {SOURCES['vgn']}")
+    state = read_state_dict(path, VGNModelError, f"VGN's model is {SOURCES['vgn']}")
     net = VGNNet()
     problems = state_dict_mismatches(state, net.state_dict())
     if problems:

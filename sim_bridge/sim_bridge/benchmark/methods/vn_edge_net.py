@@ -36,7 +36,7 @@ import torch
 from torch import nn
 
 from ...physics.baseline_files import SOURCES, BaselineFileMissing, baselines_dir
-from .vgn import state_dict_mismatches
+from .vgn import read_state_dict, state_dict_mismatches
 
 CHECKPOINT_DIR = "vn_edge_grasp"  # in the baselines directory
 EPOCH = 105  # the published checkpoints
@@ -254,15 +254,7 @@ def checkpoint_mismatches(state, expected) -> list:
 
 
 def _read_state(path: pathlib.Path):
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # zip, pickle or unsafe-type errors all mean "not a state dict"
-        raise VNEdgeModelError(f"{path} is not a PyTorch state dict (torch.load, tensors only, raised "
-                               f"{type(e).__name__}); VN-EdgeGraspNet's are in {SOURCES['vn_edge_grasp']}") from e
-    if not isinstance(state, collections.abc.Mapping):
-        raise VNEdgeModelError(f"{path} holds a {type(state).__name__}, not a state dict; "
-                               f"VN-EdgeGraspNet's are in {SOURCES['vn_edge_grasp']}")
-    return state
+    return read_state_dict(path, VNEdgeModelError, f"VN-EdgeGraspNet's are in {SOURCES['vn_edge_grasp']}")
 
 
 def load_vn_edge(path=None, baselines=None) -> VNEdgeNet:
