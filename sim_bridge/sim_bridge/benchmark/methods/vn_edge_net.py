@@ -28,7 +28,6 @@ The four checkpoints are four state dicts, loaded strictly (`load_vn_edge`):
 
 from __future__ import annotations
 
-import collections.abc
 import pathlib
 import re
 
