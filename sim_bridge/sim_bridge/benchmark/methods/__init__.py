@@ -9,7 +9,7 @@ the project never copies into its tree: physics.baseline_files)."""
 
 from __future__ import annotations
 
-from . import gravgrasp, vgn, vn_edge
+from . import gravgrasp, vgn, vgn_2f85, vn_edge
 from .method import BASELINES, Detector, Method, MethodFileMissing
 
 __all__ = ["METHODS", "Detector", "Method", "MethodFileMissing", "method_named", "method_of"]
@@ -33,6 +33,10 @@ METHODS = {m.name: m for m in (
     # the baselines, with their published weights, on the hand they were made for
     Method("vgn", "panda", vgn.make_detector, vgn.MODEL_FILE, BASELINES,
            "VGN (Breyer et al. 2020), published weights, Panda hand"),
+    # VGN's detector on the project's hand (its grasps moved to the 2F-85's TCP, the finger
+    # tips kept where they were: vgn_2f85.py): the detector apart from the hand
+    Method("vgn_2f85", "2f85", vgn_2f85.make_detector, vgn.MODEL_FILE, BASELINES,
+           "VGN's published weights, its grasps executed by the 2F-85"),
     Method("vn_edge", "panda", vn_edge.make_detector, vn_edge.MODEL_FILE, BASELINES,
            "VN-EdgeGraspNet (Huang et al. 2023), published weights, Panda hand",
            companions=vn_edge.COMPANION_FILES),

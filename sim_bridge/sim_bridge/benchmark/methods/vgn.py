@@ -46,7 +46,7 @@ from scipy.spatial.transform import Rotation
 from torch import nn
 
 from gravgrasp_detector.perception import hand_clearance
-from gravgrasp_detector.perception.detection import DetectionOptions, Grasp
+from gravgrasp_detector.perception.detection import DetectionOptions, Grasp, free_space_band
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 from ...physics.baseline_files import SOURCES, BaselineFileMissing, baseline_file
@@ -217,10 +217,7 @@ def mask_quality(grid, quality, width_voxels, options: VGNOptions = VGNOptions()
     """Smoothed quality, 0 away from observed free space, inside objects and at widths
     out of range (detection.py's `process`)."""
     quality = ndimage.gaussian_filter(quality, sigma=options.gaussian_sigma_voxels, mode="nearest")
-    free = grid > 0.5
-    inside = (grid > 1e-3) & (grid < 0.5)
-    near_free = ndimage.binary_dilation(free, iterations=2, mask=~inside)
-    quality[~near_free] = 0.0
+    quality[~free_space_band(grid).numpy()] = 0.0
     quality[(width_voxels < options.min_width_voxels) | (width_voxels > options.max_width_voxels)] = 0.0
     return quality
 
@@ -258,20 +255,26 @@ def make_vgn_detector(net: VGNNet, options: VGNOptions = VGNOptions()):
     return detect
 
 
-# the benchmark's method (methods.METHODS["vgn"])
+# the benchmark's methods (methods.METHODS["vgn"]; "vgn_2f85" through vgn_2f85.py)
 
 
-def make_detector(path, protocol) -> Detector:
+def make_detector(path, protocol, hand: str = "panda", to_hand=None) -> Detector:
     """VGN with the weights at `path` as the benchmark's Detector, under the protocol's
-    max_grasps and, when on, its clear_hand (the Panda's open hand swept from the
-    pre-grasp, as detection's step 6 does for the 2F-85). The protocol's
-    validness_threshold and min_score_n are the project's detection's: VGN keeps its own
-    0.90 quality threshold. Its quality is a success probability: target "binary"."""
+    max_grasps and, when on, its clear_hand (the open hand swept from the pre-grasp, as
+    detection's step 6 does for the 2F-85). The protocol's validness_threshold and
+    min_score_n are the project's detection's: VGN keeps its own 0.90 quality threshold.
+    Its quality is a success probability: target "binary". Another hand executing VGN's
+    grasps (vgn_2f85): `hand` names it and `to_hand` moves each VGNGrasp into its TCP
+    frame, before the clearance check with that hand's geometry."""
     net = load_vgn(path)
-    detect_all = make_vgn_detector(net, VGNOptions(max_grasps=None if protocol.clear_hand else protocol.max_grasps))
+    vgn_grasps = make_vgn_detector(net, VGNOptions(max_grasps=None if protocol.clear_hand else protocol.max_grasps))
+
+    def detect_all(tsdf):
+        grasps = vgn_grasps(tsdf)
+        return [to_hand(g) for g in grasps] if to_hand else grasps
     if not protocol.clear_hand:
         return Detector(detect_all, vgn_volume(), "binary")
-    hand = HAND_GEOMETRY["panda"]
+    geometry = HAND_GEOMETRY[hand]
 
     def detect(tsdf):
         grasps = detect_all(tsdf)
@@ -280,6 +283,6 @@ def make_detector(path, protocol) -> Detector:
         grid, voxel_size_m, origin = tsdf
         points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m, vgn_input(tsdf)[1][:3, 3])
         hit = hand_clearance.hands_collide(np.array([g.pose for g in grasps]), points, voxel_size_m,
-                                           DetectionOptions.pregrasp_distance_m, hand)
+                                           DetectionOptions.pregrasp_distance_m, geometry)
         return [g for g, h in zip(grasps, hit) if not h][:protocol.max_grasps]
     return Detector(detect, vgn_volume(), "binary")
