@@ -22,6 +22,8 @@ help:
 	@echo "make execution-settings-study - recorded attempts replayed under the new execution settings: same outcomes?"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"
+	@echo "make benchmark-baselines - the paper's Fig. 5 baselines: VGN, VN-EdgeGraspNet (Panda) and VGN on the 2F-85 beside the committed rounds (256 rounds, ~10 h; pinned, background, resumable)"
+	@echo "make baselines-figure - SR/CR vs weight of every method, held-out and procedural side by side, and the table, from the rounds so far"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
 	@echo "make data-tables-v3 / data-scenes-v4 - v2 tables grown to 320 candidates; the v3 scenes relabelled with them"
@@ -111,6 +113,19 @@ benchmark-heldout: setup
 	  --out out/benchmark_heldout --workers $(WORKERS) $(BENCH_SIZE)
 benchmark-procedural: setup
 	@$(ROS) ros2 run sim_bridge benchmark --out out/benchmark --workers $(WORKERS) $(BENCH_SIZE)
+
+# The paper's Fig. 5 with its baselines (issue 41; sim_bridge/doc/baselines.md): vgn and
+# vn_edge (Panda hand) at 0.1/0.5/1.5 kg and vgn_2f85 at 0.1/1.5 kg on heldout_v4's and
+# procedural_v4's 16 scenes each, beside their committed 2F-85 rounds (copied, not rerun):
+# 256 rounds, ~69k CPU-s estimated, ~10 h on 2 free cores. Pinned to PIN in the background
+# (log: out/benchmark_baselines.log); resumable: rerun with PIN=<the commit it started on>.
+PIN ?= HEAD
+.PHONY: benchmark-baselines baselines-figure
+benchmark-baselines: setup
+	@c=$$(git rev-parse --verify --quiet "$(PIN)^{commit}") || { echo "PIN=$(PIN) names no commit" >&2; exit 2; }; \
+	  ros_ws/run_pinned.sh $$c out/benchmark_baselines.log -- out/pinned/$${c:0:12}/sim_bridge/scripts/baselines_chain.sh
+baselines-figure: setup
+	@$(ROS) python -m sim_bridge.benchmark.baselines_figure
 
 # Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
 # cheaper label settings (make label-settings-study), the held-out meshes left out.
