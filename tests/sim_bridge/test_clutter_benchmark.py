@@ -10,7 +10,7 @@ import pytest
 import torch
 import trimesh
 
-from gravgrasp_detector.perception import model_file, networks, tsdf
+from gravgrasp_detector.perception import detection, model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
 from sim_bridge.benchmark import clearing, methods, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
@@ -308,6 +308,26 @@ def test_a_selection_variant_takes_only_sure_grasps_of_its_base_methods_model(tm
         assert voxels == ([tuple(g.voxel_index) for g in every] if sure_expected else [])
 
 
+
+def test_the_masked_variant_takes_only_grasps_vgns_mask_keeps_of_its_base_methods_model(tmp_path):
+    path = save_test_model(tmp_path / "gravgrasp.pt")
+    assert bench_rounds.resolve_methods(["ours_masked"], tmp_path) == {"ours_masked": str(path.resolve())}
+    assert methods.METHODS["ours_masked"].file_of == "ours" and methods.METHODS["ours_masked"].hand == "2f85"
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3  # observed inside
+    grid[10:30, 10:30, 12] = 0.5  # the surface
+    grid[10:30, 10:30, 13:16] = 0.7  # observed free space in front of it
+    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
+    every = methods.METHODS["ours"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
+    masked = methods.METHODS["ours_masked"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
+    band = detection.free_space_band(grid)
+
+    def kept(g):  # VGN's mask where the variant tests it (detection's module doc)
+        point = g.pose[:3, 3] + (detection.FINGER_BASE_Z_M * g.pose[:3, 2] if MASKED_AT == "finger_base" else 0)
+        return bool(detection.band_keeps(band, point, 0.0075)[0])
+    assert masked and all(kept(g) for g in masked)
+    assert any(not kept(g) for g in every)  # the paper's selection takes grasps the mask drops
+
 def save_test_model(path, validness_bias=5.0, target="gravity-score"):
     """Random init, made to propose top-down grasps (closing along task y) at every
     near-surface voxel, so a round executes real attempts."""
@@ -337,18 +357,39 @@ def test_binary_model_ranks_by_validness(tmp_path):
 
 # -- a small run in Drake ---------------------------------------------------------------
 
-def test_run_outputs_determinism_and_resume(tmp_path, capsys, monkeypatch):
-    model = save_test_model(tmp_path / "ours.pt")
-    nothing = save_test_model(tmp_path / "blind.pt", validness_bias=-20.0)
-    out = tmp_path / "out"
-    argv = ["--out", str(out), "--methods", "ours,binary", "--models-dir", str(tmp_path / "none"),
-            "--model", f"ours={model}", "--model", f"blind={nothing}", "--scenes", "1", "--weights", "0.3",
-            "--time-step-s", "0.002", "--workers", "0", "--no-progress",
+def run_argv(out, models):
+    return ["--out", str(out), "--methods", "ours,binary", "--models-dir", str(models / "none"),
+            "--model", f"ours={models / 'ours.pt'}", "--model", f"blind={models / 'blind.pt'}", "--scenes", "1",
+            "--weights", "0.3", "--time-step-s", "0.002", "--workers", "0", "--no-progress",
             # a scene where the test model's best grasps pass the executor's checks (seed
             # 0's packed scene, since footprints pack objects closer, has none: 0 attempts)
             "--seed", "1"]
-    assert cb.main(argv) == 0
-    text = capsys.readouterr().out.strip().splitlines()
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    """One small run (ours' round of tens of seconds in Drake, blind's that detects nothing),
+    made once for the module: the resume test works on a copy, the replay test reads it.
+    -> (models dir, run dir, the lines the run printed)."""
+    import contextlib
+    import io
+
+    models = tmp_path_factory.mktemp("small_run")
+    save_test_model(models / "ours.pt")
+    save_test_model(models / "blind.pt", validness_bias=-20.0)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert cb.main(run_argv(models / "out", models)) == 0
+    return models, models / "out", printed.getvalue().strip().splitlines()
+
+
+def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeypatch):
+    import shutil
+
+    models, run_dir, text = small_run
+    out = tmp_path / "out"
+    shutil.copytree(run_dir, out)
+    argv = run_argv(out, models)
     assert any("skipping binary" in line for line in text)
     assert text[-2].startswith("SR_ours_0.3=") and text[-1].startswith("SR_blind_0.3=nan")
 
@@ -453,17 +494,14 @@ def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_remove
     assert cell.world.finger_width_m() > 0.08  # open
 
 
-def test_a_recorded_round_replays_to_the_same_attempts_and_shows_the_closing_region(tmp_path, capsys):
-    """replay_round: the first attempt of a fresh one-round run comes out the same (pose and
-    outcome), with what the detector saw between the pads; another model file or a round
-    that was not run is one error line."""
+def test_a_recorded_round_replays_to_the_same_attempts_and_shows_the_closing_region(small_run, tmp_path, capsys):
+    """replay_round: the first attempt of a fresh one-round run (the module's) comes out the
+    same (pose and outcome), with what the detector saw between the pads; another model file
+    or a round that was not run is one error line."""
     from sim_bridge.benchmark import replay
 
-    model = save_test_model(tmp_path / "ours.pt")
-    out = tmp_path / "out"
-    assert cb.main(["--out", str(out), "--methods", "ours", "--models-dir", str(tmp_path / "none"),
-                    "--model", f"ours={model}", "--scenes", "1", "--weights", "0.3", "--time-step-s", "0.002",
-                    "--workers", "0", "--no-progress", "--seed", "1"]) == 0
+    models, out, _ = small_run
+    model = models / "ours.pt"
     recorded = json.loads((out / "rounds" / "ours" / "0.3" / "packed_000.json").read_text())["attempts"]
     assert recorded
     capsys.readouterr()
