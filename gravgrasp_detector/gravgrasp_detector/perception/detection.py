@@ -7,6 +7,16 @@ numpy until the final few grasps):
    its training domain far from anything it saw. Voxels inside objects and in
    occluded space are kept: a power grasp's TCP can lie inside the object, and the
    learned validness head (paper Sec. V) is what rejects bad ones.
+   (`free_space_mask`, "off" by default: the paper has no such step) VGN's mask keeps
+   only voxels within 2 six-connected dilations of observed free space (grid > 0.5:
+   the band in front of a surface) that do not enter observed inside (1e-3 < grid <
+   0.5): `free_space_band`, the rule benchmark.methods.vgn applies to VGN's grid,
+   whose convention this grid shares (tsdf.py). "tcp" tests it at the candidate voxel.
+   But VGN's TCP is the Panda's finger base and this one the pinch point between the
+   pads, inside what a grasp holds, so there it keeps only grasps that pinch in front
+   of a surface; "finger_base" tests it where VGN's TCP would sit on the candidate's
+   approach, FINGER_BASE_Z_M (5 cm, VGN's finger depth, behind the finger tips),
+   from every candidate's rotation (VGN masks before its non-maximum suppression).
 2. validness = sigmoid(logit) >= validness_threshold and, ranked by a score (rank_by
    "score" or "expected_score"), score_n >= min_score_n (and > 0).
 3. non-maximum suppression: keep a voxel only if its ranking key (rank_by: the score,
@@ -48,6 +58,11 @@ CLOSING_REGION_TCP = np.array([[-PAD_WIDTH_M / 2, -MAX_STROKE_M / 2, PALM_FACE_Z
 
 PRECISIONS = ("auto", "bf16", "fp32")
 RANKINGS = ("score", "validness", "expected_score")
+FREE_SPACE_MASKS = ("off", "tcp", "finger_base")
+# VGN's finger depth (its TCP -> the finger tips): its TCP is the Panda's finger base
+VGN_FINGER_DEPTH_M = 0.05
+FINGER_BASE_Z_M = FINGER_TIP_Z_M - VGN_FINGER_DEPTH_M  # where VGN's TCP would sit, in this TCP frame
+FREE_SPACE_DILATIONS = 2  # VGN's detection.py
 
 
 @dataclass(frozen=True)
@@ -75,6 +90,9 @@ class DetectionOptions:
     # "validness" applies. `model_file.has_score(metadata)` says which.
     has_score: bool = True
     clear_hand: bool = False  # step 6
+    # VGN's mask (step 1): "off" (the paper's selection), "tcp" (at the candidate voxel)
+    # or "finger_base" (where VGN's TCP would sit on the candidate's approach)
+    free_space_mask: str = "off"
     pregrasp_distance_m: float = 0.05  # where step 6's approach starts (the executor's)
 
     def __post_init__(self):
@@ -82,6 +100,8 @@ class DetectionOptions:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.rank_by not in RANKINGS:
             raise ValueError(f"rank_by {self.rank_by!r}: use one of {RANKINGS}")
+        if self.free_space_mask not in FREE_SPACE_MASKS:
+            raise ValueError(f"free_space_mask {self.free_space_mask!r}: use one of {FREE_SPACE_MASKS}")
         if not self.has_score and self.rank_by != "validness":
             raise ValueError(f"rank_by {self.rank_by!r} needs a gravity-rejection score, and has_score is False "
                              "(a model trained with --target binary): rank by 'validness'")
@@ -263,6 +283,53 @@ def near_surface_mask(grid, surface_distance_voxels):
     return cube_max((grid > 0) & (grid <= 0.5), surface_distance_voxels)
 
 
+def free_space_band(grid, dilations=FREE_SPACE_DILATIONS):
+    """(R, R, R) bool tensor: VGN's mask (its detection.py's `process`) on a grid in tsdf.py's
+    convention, numpy or torch: observed free space (grid > 0.5), grown by `dilations`
+    six-connected steps that never enter observed inside (1e-3 < grid < 0.5). scipy's
+    binary_dilation(grid > 0.5, iterations=dilations, mask=~inside), as VGN calls it."""
+    grid = torch.as_tensor(np.asarray(grid) if not torch.is_tensor(grid) else grid)
+    may_grow = ~((grid > 1e-3) & (grid < 0.5))
+    kept = grid > 0.5
+    for _ in range(int(dilations)):
+        grown = kept.clone()
+        for dim in range(3):
+            n = kept.shape[dim]
+            ahead, behind = grown.narrow(dim, 1, n - 1), grown.narrow(dim, 0, n - 1)
+            ahead |= kept.narrow(dim, 0, n - 1)
+            behind |= kept.narrow(dim, 1, n - 1)
+        kept = kept | (grown & may_grow)
+    return kept
+
+
+def band_keeps(band, points_grid, voxel_size_m):
+    """(N,) bool: whether the voxels holding points (N, 3) of the grid's frame are in
+    `band` (free_space_band); a point outside the volume is not."""
+    ijk = np.floor(np.asarray(points_grid, float).reshape(-1, 3) / voxel_size_m).astype(int)
+    inside = np.all((ijk >= 0) & (ijk < np.array(band.shape)), axis=1)
+    keeps = np.zeros(len(ijk), bool)
+    keeps[inside] = band.numpy()[tuple(ijk[inside].T)]
+    return keeps
+
+
+def free_space_mask(grid, candidate, poses_at, voxel_size_m, where):
+    """(R, R, R) bool: the candidate voxels VGN's mask (free_space_band) keeps, tested at
+    the voxel (where "tcp") or at the point FINGER_BASE_Z_M along each candidate's
+    approach ("finger_base": its rotation is computed for every candidate, as VGN masks
+    before its non-maximum suppression). poses_at: (N, 3) voxel indices -> (N, 4, 4)
+    poses in the grid's frame."""
+    band = free_space_band(grid)
+    if where == "tcp":
+        return band
+    index = candidate.nonzero()
+    keeps = torch.zeros_like(candidate)
+    if len(index):
+        poses = poses_at(index)
+        at_base = band_keeps(band, poses[:, :3, 3] + FINGER_BASE_Z_M * poses[:, :3, 2], voxel_size_m)
+        keeps[tuple(index[torch.as_tensor(at_base)].T)] = True
+    return keeps
+
+
 def select_grasps(
     grid,
     score_n,
@@ -312,6 +379,9 @@ def select_grasps(
         poses[:, :3, 3] = (index.double().numpy() + 0.5) * voxel_size_m
         poses[:, 3, 3] = 1.0
         return poses
+
+    if options.free_space_mask != "off":
+        candidate &= free_space_mask(grid, candidate, poses_at, voxel_size_m, options.free_space_mask)
 
     def ranked(candidate):  # steps 3-5
         return _ranked_poses(grid, candidate, key, poses_at, voxel_size_m, options)

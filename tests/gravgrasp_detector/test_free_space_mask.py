@@ -1,0 +1,81 @@
+"""VGN's mask as a switch of the project's detection (DetectionOptions.free_space_mask,
+issue 42's selection lever): the band it keeps, and the candidates it lets through at
+the voxel ("tcp") and where VGN's TCP would sit on the approach ("finger_base")."""
+import numpy as np
+import pytest
+import torch
+from scipy import ndimage
+
+from gravgrasp_detector.perception import detection
+
+VS = 0.0075
+R = 40
+INSIDE_K, FREE_K = range(3, 7), range(7, 11)  # observed behind / in front of a table top
+
+
+def table_grid():
+    """A table top between k = 6 and 7: observed inside (0.3) below, observed free space
+    (0.7, the band in front of the surface) above, 0 (unobserved, or far) elsewhere."""
+    grid = np.zeros((R, R, R), np.float32)
+    grid[:, :, INSIDE_K.start:INSIDE_K.stop] = 0.3
+    grid[:, :, FREE_K.start:FREE_K.stop] = 0.7
+    return torch.from_numpy(grid)
+
+
+def test_the_band_is_free_space_and_two_steps_beyond_never_inside():
+    band = detection.free_space_band(table_grid())
+    kept_k = np.flatnonzero(band[20, 20].numpy()).tolist()
+    assert kept_k == [7, 8, 9, 10, 11, 12]  # free space + 2 dilations up, none into k = 3..6
+    assert band.dtype == torch.bool and bool(band[:, :, 7:13].all())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_band_is_vgns_masked_binary_dilation(seed):
+    # VGN's own call (detection.py's `process`) on a random grid of the grid's values,
+    # near-zero included (1e-3 is where VGN's "inside" starts)
+    values = np.array([0.0, 1e-4, 2e-3, 0.3, 0.5, 0.7, 0.95], np.float32)
+    grid = np.random.default_rng(seed).choice(values, size=(R, R, R), p=[0.5, 0.05, 0.05, 0.15, 0.05, 0.1, 0.1])
+    inside = (grid > 1e-3) & (grid < 0.5)
+    expected = ndimage.binary_dilation(grid > 0.5, iterations=2, mask=~inside)
+    np.testing.assert_array_equal(detection.free_space_band(grid).numpy(), expected)
+    np.testing.assert_array_equal(detection.free_space_band(torch.from_numpy(grid)).numpy(), expected)
+
+
+def top_down_channels(index):
+    """ex-ez rotation channels of a top-down grasp (approach -z) at every voxel."""
+    return torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0, -1.0]).repeat(len(index), 1)
+
+
+# candidates: a strong one inside the table top, one on the free-space band, one far above
+INSIDE, BAND, FAR = (10, 10, 4), (20, 20, 8), (30, 30, 15)
+
+
+def select(mask):
+    score, validness = torch.zeros(R, R, R), torch.ones(R, R, R)
+    for index, value in ((INSIDE, 9.0), (BAND, 5.0), (FAR, 7.0)):
+        score[index] = value
+    options = detection.DetectionOptions(min_surface_voxels=0, surface_distance_voxels=10, free_space_mask=mask)
+    grasps = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS, (0, 0, 0),
+                                     options)
+    return [g.voxel_index for g in grasps]
+
+
+def test_off_keeps_every_candidate_as_the_paper_does():
+    assert select("off") == [INSIDE, FAR, BAND]
+
+
+def test_at_the_tcp_only_the_candidate_on_the_band_is_kept():
+    assert select("tcp") == [BAND]
+
+
+def test_at_the_finger_base_the_mask_is_tested_up_the_approach():
+    # a top-down grasp's finger base is FINGER_BASE_Z_M (-4.6 cm: 6.1 voxels) up the
+    # approach from its TCP: above the inside candidate (k 4 -> 10) it is on the band, above
+    # the band one (k 8 -> 14) and the far one (k 15 -> 21) beyond it
+    assert [int(((k + 0.5) * VS - detection.FINGER_BASE_Z_M) / VS) for k in (4, 8, 15)] == [10, 14, 21]
+    assert select("finger_base") == [INSIDE]
+
+
+def test_a_mask_not_known_is_one_clear_error():
+    with pytest.raises(ValueError, match=r"free_space_mask 'vgn'.*'off', 'tcp', 'finger_base'"):
+        detection.DetectionOptions(free_space_mask="vgn")
