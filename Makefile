@@ -3,8 +3,10 @@
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 ROS := set +u; source ros_ws/env.sh; set -u;
-# Both cores, one test file per worker (a file's module fixtures, e.g. a sim world, are built once).
-PYTEST_ARGS ?= -n 2 --dist loadfile
+# Both cores, one test file per worker (a file's module fixtures, e.g. a sim world, are built once),
+# in tests/conftest.py's order, heavy files first: xdist's default re-sorts files by test count,
+# which hands out the one-test heavy files (the soak, 84 s) last, with the other worker idle.
+PYTEST_ARGS ?= -n 2 --dist loadfile --no-loadscope-reorder
 
 .PHONY: help setup build test demo lock bench-detect bench-train bench-sim bench-gripper data-report data-objects data-scenes
 

@@ -41,7 +41,8 @@ def pytest_collection_modifyitems(config, items):
     # Heavy files first, each kept whole and in order: those with the most kinds of heavy
     # work (ROS processes and Drake: the end-to-end tests, the soak), then the rest of
     # the heavy ones, the quick files last. `make test`'s two workers take whole files
-    # in this order, so the quick files fill the gaps at the end instead of one worker
+    # in this order (with --no-loadscope-reorder: xdist's default re-sorts files by test count,
+    # one-test heavy files last), so the quick files fill the gaps at the end instead of one worker
     # running the end-to-end tests alone.
     weight = collections.Counter()
     for item in items:
