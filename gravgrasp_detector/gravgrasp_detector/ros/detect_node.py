@@ -120,6 +120,10 @@ class DetectNode(Node):
         p("clear_hand", False, described(
             "Publish only grasps whose open hand, swept from the pre-grasp, clears the observed scene (the "
             "executor's check), letting a refused grasp's neighbours through NMS; off: the paper's selection"))
+        p("free_space_mask", "off", described(
+            "VGN's mask on the candidates (within 2 dilations of observed free space, none inside): 'off' (the "
+            "paper's selection), 'tcp' (at the candidate voxel, the pinch point), or 'finger_base' (where VGN's "
+            "TCP would sit, 5 cm behind the finger tips on the candidate's approach)"))
         threads = p("torch_threads", 1, int_range(
             "Intra-op threads of the network. 1 by default: on a small CPU shared with the tsdf "
             "node, OpenMP threads waiting on a busy core made detection up to 10x slower", 1, 64,
@@ -198,6 +202,7 @@ class DetectNode(Node):
             rank_by=self.rank_by,
             has_score=self.has_score,
             clear_hand=param("clear_hand"),
+            free_space_mask=param("free_space_mask"),
             pregrasp_distance_m=param("pregrasp_distance_m"),
         )
         grasps = detection.detect_grasps(self.model, grid, msg.voxel_size_m, T_task_grid, options)
