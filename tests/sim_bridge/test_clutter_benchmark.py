@@ -322,8 +322,8 @@ def test_the_masked_variant_takes_only_grasps_vgns_mask_keeps_of_its_base_method
     masked = methods.METHODS["ours_masked"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
     band = detection.free_space_band(grid)
 
-    def kept(g):  # VGN's mask where the variant tests it (detection's module doc)
-        point = g.pose[:3, 3] + (detection.FINGER_BASE_Z_M * g.pose[:3, 2] if MASKED_AT == "finger_base" else 0)
+    def kept(g):  # VGN's mask where VGN's TCP would sit (detection's free_space_mask "finger_base")
+        point = g.pose[:3, 3] + detection.FINGER_BASE_Z_M * g.pose[:3, 2]
         return bool(detection.band_keeps(band, point, 0.0075)[0])
     assert masked and all(kept(g) for g in masked)
     assert any(not kept(g) for g in every)  # the paper's selection takes grasps the mask drops

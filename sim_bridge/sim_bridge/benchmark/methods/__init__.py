@@ -30,6 +30,12 @@ METHODS = {m.name: m for m in (
     # 0.62-0.82, Binary's picks at a median 0.97 (doc/before-lift-diagnosis.md)
     gravgrasp.model_method("ours_sure", "gravgrasp.pt", "Ours ranked by score among grasps of validness >= 0.9",
                            validness_floor=0.9, file_of="ours"),
+    # the other selection lever: VGN's mask, tested where VGN's TCP would sit on each
+    # candidate's approach (at this TCP, the pinch point, it dropped 32 of Ours' 39 first
+    # picks that succeeded; there, none of them and 3 of the 8 that failed before the lift:
+    # doc/before-lift-diagnosis.md)
+    gravgrasp.model_method("ours_masked", "gravgrasp.pt", "Ours among grasps VGN's mask keeps at its finger base",
+                           free_space_mask="finger_base", file_of="ours"),
     # the baselines, with their published weights, on the hand they were made for
     Method("vgn", "panda", vgn.make_detector, vgn.MODEL_FILE, BASELINES,
            "VGN (Breyer et al. 2020), published weights, Panda hand"),
