@@ -33,19 +33,16 @@ import dataclasses
 
 import numpy as np
 import trimesh
-from scipy import ndimage
 
-from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP
+from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP, FINGER_BASE_Z_M, free_space_band
 from gravgrasp_detector.perception.tsdf import to_network_grid
-from robotiq_driver.hand_geometry import FINGER_TIP_Z_M
 
 SURFACE_CLASSES = ("inside", "band", "free", "unobserved")
 BAND_LIMIT = 0.98  # |d| / truncation at which the grid drops a voxel (tsdf.to_network_grid)
 SAMPLE_SPACING_M = 0.002  # object surface samples this far apart (about)
 MAX_SAMPLES = 60_000  # per object: a 0.24 m^2 surface at 2 mm
 SAME_PICK_M, SAME_PICK_DEG = 0.02, 30.0
-VGN_FINGER_DEPTH_M = 0.05  # VGN's finger_depth: its TCP -> finger tips
-VGN_TCP_Z_M = FINGER_TIP_Z_M - VGN_FINGER_DEPTH_M  # that TCP in the 2F-85's TCP frame (z = approach)
+VGN_TCP_Z_M = FINGER_BASE_Z_M  # VGN's TCP, 5 cm behind the finger tips, in the 2F-85's TCP frame (z = approach)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -88,9 +85,7 @@ def surface_class(view: View, points) -> np.ndarray:
 
 def vgn_mask(grid) -> np.ndarray:
     """(R, R, R) bool: the voxels VGN's detection keeps (module doc)."""
-    grid = np.asarray(grid)
-    inside = (grid > 1e-3) & (grid < 0.5)
-    return ndimage.binary_dilation(grid > 0.5, iterations=2, mask=~inside)
+    return free_space_band(grid).numpy()
 
 
 def vgn_keeps(view: View, point, mask=None) -> bool:
