@@ -1,6 +1,8 @@
 """VGN's mask as a switch of the project's detection (DetectionOptions.free_space_mask,
 issue 42's selection lever): the band it keeps, and the candidates it lets through at
 the voxel ("tcp") and where VGN's TCP would sit on the approach ("finger_base")."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -79,3 +81,27 @@ def test_at_the_finger_base_the_mask_is_tested_up_the_approach():
 def test_a_mask_not_known_is_one_clear_error():
     with pytest.raises(ValueError, match=r"free_space_mask 'vgn'.*'off', 'tcp', 'finger_base'"):
         detection.DetectionOptions(free_space_mask="vgn")
+
+
+def tilted_channels(index):
+    """ex-ez channels whose approach tilts from straight down by 0-80 deg about x, by
+    voxel: the finger base lands on the band for some candidates and not for others."""
+    tilt = torch.deg2rad(20.0 * (index.sum(dim=1) % 5).double()).float()
+    zeros, ones = torch.zeros_like(tilt), torch.ones_like(tilt)
+    return torch.stack((ones, zeros, zeros, zeros, torch.sin(tilt), -torch.cos(tilt)), dim=1)
+
+
+def test_finger_base_keeps_what_the_mask_keeps_at_each_candidates_own_approach():
+    # smooth, as a network's outputs are; approaches tilted by voxel
+    rng = np.random.default_rng(0)
+    score = torch.from_numpy(ndimage.gaussian_filter(rng.random((R, R, R)), 3).astype(np.float32)) * 100
+    validness = torch.from_numpy(rng.random((R, R, R)).astype(np.float32))
+    options = detection.DetectionOptions(max_grasps=5, free_space_mask="finger_base")
+    grid = table_grid()
+    grasps = detection.select_grasps(grid, score, validness, tilted_channels, "ex-ez", VS, (0, 0, 0), options)
+    band = detection.free_space_band(grid)
+    bases = [g.pose[:3, 3] + detection.FINGER_BASE_Z_M * g.pose[:3, 2] for g in grasps]
+    assert len(grasps) == 5 and detection.band_keeps(band, np.array(bases), VS).all()
+    off = detection.select_grasps(grid, score, validness, tilted_channels, "ex-ez", VS, (0, 0, 0),
+                                  dataclasses.replace(options, free_space_mask="off"))
+    assert [g.voxel_index for g in off] != [g.voxel_index for g in grasps]  # it took some of the paper's picks
