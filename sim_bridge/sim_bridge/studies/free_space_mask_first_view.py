@@ -1,0 +1,194 @@
+"""What would VGN's mask (detection's `free_space_mask`, issue 42's selection lever) have
+done to the first pick of committed benchmark rounds?
+
+A round's first view needs no replay of attempts: the scene settles and the detector sees
+it once. So, cheaply (seconds a round), each round's first view is rebuilt from its
+committed scene, protocol and model file (sha256 checked), and its recorded first pick
+(attempt 1: the grasp at its recorded rank, trusted only when the replayed pose equals the
+recorded one to 2e-6) is diagnosed as before_lift_diagnosis does (benchmark.pick_diagnosis:
+where its TCP sat, whether VGN's mask keeps it at the TCP and where VGN's TCP would sit,
+what its approach meets), beside the first feasible pick of the same model with each mask
+(`FREE_SPACE_MASKS` but "off"): the same pick or another, where it sits, whether its
+approach meets a true object or the table before the grasp pose.
+
+The first pick is all it sees: a failure later in a round happened in a view this does
+not rebuild (before_lift_diagnosis replays those, at ~2 CPU-min a round).
+
+    python -m sim_bridge.studies.free_space_mask_first_view --results sim_bridge/results/heldout_v4 \\
+        --weights 0.1,0.5,1.5 --out sim_bridge/results/free_space_mask_first_view   # and --method binary
+    python -m sim_bridge.studies.free_space_mask_first_view --out sim_bridge/results/free_space_mask_first_view --report
+
+One JSON per round under --out/rounds/<results>/<method>/<kg>/<scene>.json (a rerun skips
+those there); --report prints the counts by the first attempt's outcome.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import pathlib
+import sys
+import time
+
+import numpy as np
+import torch
+
+from gravgrasp_detector import atomic_files
+from gravgrasp_detector.perception.detection import FREE_SPACE_MASKS
+from gravgrasp_detector.perception.model_file import file_sha256
+
+from ..benchmark import pick_diagnosis
+from ..benchmark.clutter_benchmark import parse_weights
+from ..benchmark.methods import METHODS, gravgrasp
+from ..benchmark.protocol import Protocol, weight_key
+from ..benchmark.replay import SurfaceSamples
+from ..benchmark.report import outcome_class
+from ..benchmark.rounds import RoundTask, make_cell
+from .before_lift_diagnosis import FAILURES, diagnose_view
+
+MASKS = tuple(m for m in FREE_SPACE_MASKS if m != "off")
+
+
+def first_view(results_dir, method, mass_kg, scene_id, model_path) -> dict:
+    """The record of one round's first view (module doc)."""
+    t0 = time.process_time()
+    results_dir = pathlib.Path(results_dir)
+    recorded = json.loads((results_dir / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json").read_text())
+    out = {"results": results_dir.name, "method": method, "mass_kg": mass_kg, "scene_id": scene_id}
+    if not recorded["attempts"]:
+        return {**out, "outcome": None, "cpu_s": 0.0}
+    if file_sha256(model_path) != recorded["model_sha256"]:
+        raise ValueError(f"{model_path} is not the model round {method}/{mass_kg}/{scene_id} ran "
+                         f"(sha256 {recorded['model_sha256'][:12]}…): pass --model PATH")
+    first = recorded["attempts"][0]
+    out.update(outcome=outcome_class(first), validness=first["validness"], rank=first["rank"])
+    config = json.loads((results_dir / "config.json").read_text())
+    scene = json.loads((results_dir / "scenes" / f"{scene_id}.json").read_text())
+    protocol = Protocol(**config["protocol"])
+    torch.set_num_threads(1)
+    cell, _ = make_cell(RoundTask(method, str(model_path), recorded["model_sha256"], float(mass_kg), scene, protocol))
+    masked = {mask: gravgrasp.make_detector(model_path, protocol, free_space_mask=mask).detect for mask in MASKS}
+    cell.settle()
+    cell.remove_fallen()
+    tsdf, grasps = cell.detect()
+    view = pick_diagnosis.View(*cell.volume.tsdf_and_weights(), tsdf[1], np.asarray(tsdf[2]))
+    rank = first["rank"]
+    if rank >= len(grasps) or not np.allclose(grasps[rank].pose, first["pose"], atol=2e-6):
+        return {**out, "same_pose": False, "cpu_s": round(time.process_time() - t0, 1)}
+    state = (tsdf, grasps, view, SurfaceSamples(cell.world, pick_diagnosis.sample_surface).now())
+    d = diagnose_view(cell, state, grasps[rank], masked)
+    return {**out, "same_pose": True, "diagnosis": d, "detected": {m: len(f(tsdf)) for m, f in masked.items()},
+            "cpu_s": round(time.process_time() - t0, 1)}
+
+
+def _group(record) -> str:
+    o = record["outcome"]
+    return "success" if o == "success" else "before the lift" if o in FAILURES else "after the lift"
+
+
+def _pick_words(pick) -> str:
+    if pick is None:
+        return "none feasible"
+    if pick["same"]:
+        return "the same"
+    meets = "meets something" if pick["first_contact"] else "clear"
+    return f"another ({pick['tcp_class']}, validness {pick['validness']:.2f}, {meets})"
+
+
+def report_lines(records: list) -> list:
+    """Counts by the first attempt's outcome (success, failed before the lift, after it)."""
+    lines = []
+    seen = [r for r in records if r.get("same_pose")]
+    for results, method in sorted({(r["results"], r["method"]) for r in records}):
+        ours = [r for r in records if (r["results"], r["method"]) == (results, method)]
+        lines.append(f"{results} {method}: {sum(r['outcome'] is not None for r in ours)} rounds, "
+                     f"{sum(bool(r.get('same_pose')) for r in ours)} first views repeated")
+        by = collections.defaultdict(list)
+        for r in ours:
+            if r.get("same_pose"):
+                by[_group(r)].append(r)
+        for group in ("success", "before the lift", "after the lift"):
+            rs = by.get(group, [])
+            if not rs:
+                continue
+            d = [r["diagnosis"] for r in rs]
+            classes = collections.Counter(x["tcp_class"] for x in d)
+            lines.append(f"- first attempt {group} ({len(rs)}): TCP " + ", ".join(
+                f"{c} {classes[c]}" for c in pick_diagnosis.SURFACE_CLASSES)
+                + f"; approach meets something {sum(x['first_contact'] is not None for x in d)}")
+            for mask in MASKS:
+                picks = [x["compare"][mask] for x in d]
+                none = sum(p is None for p in picks)
+                same = sum(p is not None and p["same"] for p in picks)
+                other = [p for p in picks if p is not None and not p["same"]]
+                lines.append(f"  - mask {mask}: drops the pick {len(rs) - same}"
+                             f" (another pick {len(other)}, of which approach meets something "
+                             f"{sum(p['first_contact'] is not None for p in other)}, validness median "
+                             f"{np.median([p['validness'] for p in other]) if other else float('nan'):.2f}; "
+                             f"none feasible {none}); keeps it {same}; grasps detected median "
+                             f"{np.median([r['detected'][mask] for r in rs]):.0f}")
+    failed = sorted((r for r in seen if _group(r) == "before the lift"),
+                    key=lambda r: (r["results"], r["method"], r["mass_kg"], r["scene_id"]))
+    if failed:
+        lines.append("first picks that failed before the lift (its approach's first contact; each mask's pick):")
+    for r in failed:
+        d = r["diagnosis"]
+        picks = "; ".join(f"{m}: {_pick_words(d['compare'][m])}" for m in MASKS)
+        contact = d["first_contact"]
+        lines.append(f"- {r['results']} {r['method']} {r['mass_kg']} kg {r['scene_id']}: {r['outcome']}, "
+                     f"TCP {d['tcp_class']}, "
+                     f"validness {r['validness']:.2f}, meets {contact['what'] if contact else 'nothing'}; {picks}")
+    cpu = [r["cpu_s"] for r in records if r.get("same_pose") is not None]
+    if cpu:
+        lines.append(f"CPU per round: mean {np.mean(cpu):.1f} s, total {sum(cpu):.0f} s ({len(cpu)} rounds)")
+    return lines
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("--results", action="append", help="a benchmark output directory (repeat for several); "
+                   "default sim_bridge/results/heldout_v4")
+    p.add_argument("--method", default="ours", help="a method of the project's models (its rounds are read)")
+    p.add_argument("--weights", default="0.1,0.5,1.5", help="kg, comma-separated")
+    p.add_argument("--model", help="the file the method's rounds ran (default: the method's)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--report", action="store_true", help="print the counts of what --out holds, run nothing")
+    args = p.parse_args(argv)
+    out = pathlib.Path(args.out)
+    if args.report:
+        records = [json.loads(f.read_text()) for f in sorted((out / "rounds").rglob("*.json"))]
+        if not records:
+            print(f"free_space_mask_first_view: nothing under {out / 'rounds'}: run without --report first",
+                  file=sys.stderr)
+            return 2
+        print("\n".join(report_lines(records)))
+        return 0
+    try:
+        if args.method not in METHODS or METHODS[args.method].hand != "2f85":
+            raise ValueError(f"--method {args.method!r}: use a method of the project's models (e.g. ours, binary)")
+        model = pathlib.Path(args.model) if args.model else METHODS[args.method].default_path()
+        if not model.is_file():
+            raise ValueError(f"model file {model} not found: pass --model PATH")
+        for results in args.results or ["sim_bridge/results/heldout_v4"]:
+            for kg in parse_weights(args.weights):
+                folder = pathlib.Path(results) / "rounds" / args.method / weight_key(kg)
+                if not folder.is_dir():
+                    raise ValueError(f"no rounds in {folder}: see {pathlib.Path(results) / 'rounds'}")
+                for f in sorted(folder.glob("*.json")):
+                    target = out / "rounds" / pathlib.Path(results).name / args.method / weight_key(kg) / f.name
+                    if target.is_file():
+                        continue
+                    record = first_view(results, args.method, kg, f.stem, model)
+                    atomic_files.save_json(target, record)
+                    print(f"{target}: first attempt {record['outcome']}, repeated {record.get('same_pose')}, "
+                          f"{record['cpu_s']} s CPU", flush=True)
+    except ValueError as e:
+        print(f"free_space_mask_first_view: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
