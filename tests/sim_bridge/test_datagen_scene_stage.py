@@ -21,6 +21,7 @@ from sim_bridge.physics.hand_model import FingerKinematics
 from sim_bridge.physics.gravity_projection import gravity_rejection_score
 from sim_bridge.physics.scenes import TABLE_HEIGHT_M, VOLUME_SIZE_M
 
+from run_shared import shared_dir
 from test_datagen_objects import write_urdf
 from test_object_symmetry import surface_distance
 
@@ -29,11 +30,10 @@ FINGER_JOINTS = ("left_coupler", "left_driver", "left_follower", "left_spring_li
                  "right_coupler", "right_driver", "right_follower", "right_spring_link")
 
 
-@pytest.fixture(scope="module")
-def grasp_data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("scene_data")
+def make_grasp_data(root):
+    """Hand-made grasp tables of a box, a cylinder and a cube (300 candidates each)."""
     meshes = root / "meshes"
-    meshes.mkdir()
+    meshes.mkdir(parents=True)
     shapes = {"box": trimesh.creation.box((0.05, 0.06, 0.08)),
               "cyl": trimesh.creation.cylinder(radius=0.025, height=0.10, sections=32),
               "cube": trimesh.creation.box((0.045, 0.045, 0.045))}
@@ -61,7 +61,6 @@ def grasp_data(tmp_path_factory):
                  scores_n=np.where(grasped[:, None], scores, 0), mode=mode, grasped=grasped,
                  mode_names=np.asarray(MODE_NAMES), finger_joint_names=np.asarray(FINGER_JOINTS),
                  finger_joint_angles=angles)
-    return root
 
 
 def run(grasp_data, out, n):
@@ -69,12 +68,27 @@ def run(grasp_data, out, n):
                            max_objects=3, max_views=3, progress=False)
 
 
-@pytest.fixture(scope="module")
-def scenes(grasp_data, tmp_path_factory):
-    out = tmp_path_factory.mktemp("scenes_out")
-    s = run(grasp_data, out, 3)
+def make_stage_run(root):
+    make_grasp_data(root / "data")
+    s = run(root / "data", root / "scenes", 3)
     assert s["done"] == 3 and s["error"] == 0, s["errors"]
-    return out
+
+
+@pytest.fixture(scope="module")
+def stage_run(tmp_path_factory):
+    """The grasp tables and a 3-scene stage run on them, made once per pytest run
+    (run_shared): test_scene_recipes reads them too. Tests only read them."""
+    return shared_dir(tmp_path_factory, "scene_stage_run", make_stage_run)
+
+
+@pytest.fixture(scope="module")
+def grasp_data(stage_run):
+    return stage_run / "data"
+
+
+@pytest.fixture(scope="module")
+def scenes(stage_run):
+    return stage_run / "scenes"
 
 
 def test_scene_files_hold_tsdf_and_labels_that_match_eq1(grasp_data, scenes):

@@ -11,14 +11,18 @@ from sim_bridge.datagen import data_report, scene_recipes
 from sim_bridge.datagen.cli import main as datagen
 from sim_bridge.datagen.scene_dataset import run_scene_stage
 
-from test_datagen_scene_stage import grasp_data, run  # noqa: F401  (a module fixture, shared)
+# the stage run's fixtures, made once per pytest run (run_shared)
+from test_datagen_scene_stage import grasp_data, run, scenes, stage_run  # noqa: F401
 
 pytestmark = pytest.mark.drake
 
 
 @pytest.fixture(scope="module")
-def made(grasp_data, tmp_path_factory):  # noqa: F811
+def made(grasp_data, scenes, tmp_path_factory):  # noqa: F811
+    """4 scenes of the stage: test_datagen_scene_stage's 3 (a scene is reproducible from its
+    seed, which that file tests) and one more made by resuming on a copy of them."""
     out = tmp_path_factory.mktemp("recipes_scenes")
+    shutil.copytree(scenes, out, dirs_exist_ok=True)
     s = run(grasp_data, out, 4)
     assert s["done"] == 4 and s["error"] == 0, s["errors"]
     return out
