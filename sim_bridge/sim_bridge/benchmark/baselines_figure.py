@@ -155,7 +155,8 @@ def table_lines(runs: list) -> list:
 
 def plot(runs: list, path) -> None:
     """2 x 2: SR (top) and CR (bottom) against weight, one column per object set."""
-    import matplotlib  # lazy, as report.plot
+    # lazy: matplotlib only for the figure, not for the table (as report.plot)
+    import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
