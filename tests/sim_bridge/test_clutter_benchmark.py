@@ -553,6 +553,22 @@ def test_a_run_from_before_execution_settings_resumes_as_v4_and_refuses_others(t
                       report_only=True)
 
 
+def test_execution_defaults_to_the_settings_of_the_run_being_resumed(tmp_path):
+    """--execution left out: a run resumes (or gains a method) under its own settings, so a
+    changed DEFAULT_EXECUTION never stops, or silently mixes, an older run."""
+    from sim_bridge.benchmark.protocol import EXECUTION_SETTINGS, execution_of_run
+    assert execution_of_run(tmp_path) is None  # no run there: the CLI's default applies
+    _legacy_config(tmp_path)
+    assert execution_of_run(tmp_path) == "v4"  # written before the settings were recorded
+    config = json.loads((tmp_path / "config.json").read_text())
+    config["protocol"].update(EXECUTION_SETTINGS["freeze_only"])
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    assert execution_of_run(tmp_path) == "freeze_only"
+    config["protocol"]["lift_speed_mps"] = 0.07  # settings with no name: the CLI's default, which then refuses
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    assert execution_of_run(tmp_path) is None
+
+
 def test_the_report_refuses_rounds_run_under_other_execution_settings(tmp_path):
     from sim_bridge.benchmark.protocol import EXECUTION_SETTINGS, Protocol as P
     from sim_bridge.benchmark.report import write_outputs

@@ -66,7 +66,8 @@ from ..physics.objects import ObjectError
 from . import failed_rounds
 from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
-                       QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, weight_key)
+                       QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, execution_of_run,
+                       weight_key)
 from .rounds import resolve_methods, run_benchmark
 
 # CLI
@@ -122,9 +123,9 @@ def main(argv=None) -> int:
     p.add_argument("--time-step-s", type=float, default=Protocol.time_step_s)
     p.add_argument("--relaxation-time-s", type=float, default=Protocol.relaxation_time_s,
                    help="SAP relaxation time of every contact; default: SimSettings' choice for the time step")
-    p.add_argument("--execution", default=DEFAULT_EXECUTION, choices=sorted(EXECUTION_SETTINGS),
+    p.add_argument("--execution", default=None, choices=sorted(EXECUTION_SETTINGS),
                    help="how rounds are simulated (protocol.EXECUTION_SETTINGS; v4: every run up to benchmark v4); "
-                        f"default {DEFAULT_EXECUTION}")
+                        f"default: the settings of the run already in --out, else {DEFAULT_EXECUTION}")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write results.md etc. from the rounds finished so far in --out (same "
@@ -173,12 +174,13 @@ def main(argv=None) -> int:
         print(f"benchmark: --close-on-contact-within-m {args.close_on_contact_within_m}: give a distance >= 0 [m] "
               "(0 = off)", file=sys.stderr)
         return 2
+    out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
+    execution = args.execution or execution_of_run(out) or DEFAULT_EXECUTION
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
                         hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
                         relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand,
                         close_on_contact_within_m=args.close_on_contact_within_m,
-                        **EXECUTION_SETTINGS[args.execution])
-    out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
+                        **EXECUTION_SETTINGS[execution])
     t0 = time.monotonic()
     try:
         rows = run_benchmark(out, methods, weights, n_scenes, args.seed, args.meshes, protocol,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import pathlib
 
 import numpy as np
 
@@ -93,6 +94,18 @@ def execution_name(settings: dict) -> str:
     """The EXECUTION_SETTINGS name of these settings, or a description of them."""
     own = execution_of(settings)
     return next((n for n, v in EXECUTION_SETTINGS.items() if v == own), json.dumps(own, sort_keys=True))
+
+
+def execution_of_run(out_dir) -> str | None:
+    """The name of the execution settings the run in `out_dir` was run under (its
+    config.json; a run from before they were recorded: "v4"), or None where no run is (or
+    its settings have no name). The CLI's --execution defaults to it, so that resuming a
+    run, or adding a method beside its copied rounds (paired_run), keeps its settings."""
+    path = pathlib.Path(out_dir) / "config.json"
+    if not path.is_file():
+        return None
+    name = execution_name(json.loads(path.read_text()).get("protocol", {}))
+    return name if name in EXECUTION_SETTINGS else None
 
 
 def with_execution(protocol: Protocol, name: str) -> Protocol:
