@@ -20,7 +20,7 @@ help:
 	@echo "make bench-train   - one training step (batch 8): the training forward vs the dense one"
 	@echo "make bench-sim     - grasp evaluations per hour in the Drake 2F-85 simulation"
 	@echo "make bench-gripper - Modbus RTU round trips against the emulated 2F-85"
-	@echo "make bench-round   - a clutter round's CPU under the v4 and today's default execution settings (freeze_only), side by side"
+	@echo "make bench-round   - a clutter round's CPU under the v4 and the fast execution settings, side by side"
 	@echo "make execution-settings-study - recorded attempts replayed under the new execution settings: same outcomes?"
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"

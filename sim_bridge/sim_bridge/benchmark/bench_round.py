@@ -3,8 +3,8 @@
     make bench-round        # python -m sim_bridge.benchmark.bench_round
 
 Runs a fixed set of committed rounds (their scenes, weights and models) whole, once under
-"v4" (every run up to benchmark v4) and once under the new settings (default: a new
-benchmark run's, protocol.DEFAULT_EXECUTION), on two worker processes: each pair of runs shares the machine at the same time, so
+"v4" (every run up to benchmark v4) and once under the new settings (default "fast"),
+on two worker processes: each pair of runs shares the machine at the same time, so
 neither has it to itself. Prints one line per round and run, then
 `round_cpu_s_before=` and `round_cpu_s=` (medians, CPU seconds per round),
 `attempt_cpu_s_before=`/`attempt_cpu_s=` (CPU seconds per attempt: a round under other
@@ -23,7 +23,7 @@ from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
 from .methods import method_named
-from .protocol import DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, weight_key, with_execution
+from .protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
 from .rounds import RoundTask, run_round
 
 # (results dir, method, weight kg, scene): short rounds of the held-out tuning meshes,
@@ -56,7 +56,7 @@ def _run(labelled):
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    p.add_argument("--settings", default=DEFAULT_EXECUTION, help=f"the new settings ({', '.join(EXECUTION_SETTINGS)})")
+    p.add_argument("--settings", default="fast", help=f"the new settings ({', '.join(EXECUTION_SETTINGS)})")
     p.add_argument("--workers", type=int, default=2)
     args = p.parse_args(argv)
     if args.settings not in EXECUTION_SETTINGS:
