@@ -82,7 +82,7 @@ EXECUTION_SETTINGS = {
 }
 LEGACY_EXECUTION = EXECUTION_SETTINGS["v4"]
 # The benchmark CLI's --execution for a new run. Still v4: every cheaper setting measured
-# changes some of Binary's marginal outcomes (freezing 3 of 42 paired attempts, freezing
+# changes some of Binary's marginal outcomes (freezing 3 of 51 paired attempts, freezing
 # and a 15 cm/s lift 6 of 67) where v4 with the grasp nudged 30 um changes none of 25
 # (doc/benchmark-speed.md).
 DEFAULT_EXECUTION = "v4"
