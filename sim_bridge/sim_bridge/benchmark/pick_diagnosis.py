@@ -15,7 +15,7 @@ The geometry behind studies.before_lift_diagnosis (issue 42): no physics, no ROS
   Panda's finger base, its finger tips 5 cm ahead; the 2F-85's TCP is the pinch point
   between the pads, at an object's middle. So `diagnose_pick` tests the mask twice: at the
   TCP (the mask applied to this network's voxels as they are) and at the point where VGN's
-  TCP would sit on the same approach (`VGN_TCP_Z_M`, 5 cm behind the finger tips).
+  TCP would sit on the same approach (detection's `FINGER_BASE_Z_M`, 5 cm behind the finger tips).
 - `first_contact`: the open hand's boxes (perception.hand_clearance.HandGeometry, the
   executor's model of the hand) moved from the pre-grasp along the approach to the grasp
   pose against the true objects (surface samples) and the table plane: the approach
@@ -42,7 +42,6 @@ BAND_LIMIT = 0.98  # |d| / truncation at which the grid drops a voxel (tsdf.to_n
 SAMPLE_SPACING_M = 0.002  # object surface samples this far apart (about)
 MAX_SAMPLES = 60_000  # per object: a 0.24 m^2 surface at 2 mm
 SAME_PICK_M, SAME_PICK_DEG = 0.02, 30.0
-VGN_TCP_Z_M = FINGER_BASE_Z_M  # VGN's TCP, 5 cm behind the finger tips, in the 2F-85's TCP frame (z = approach)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -190,6 +189,6 @@ def diagnose_pick(view: View, X_grasp, approach_m: float, hand, object_points: d
             "tcp_grid": round(float(view.grid[tuple(ijk)]), 3) if ok else None,
             "surface_distance_mm": round(1000 * surface_distance_m(view, tcp), 1),
             "vgn_keeps": vgn_keeps(view, tcp, mask),
-            "vgn_keeps_base": vgn_keeps(view, tcp + VGN_TCP_Z_M * X[:3, 2], mask),
+            "vgn_keeps_base": vgn_keeps(view, tcp + FINGER_BASE_Z_M * X[:3, 2], mask),
             "closing_region": closing_region_classes(view, X),
             "first_contact": first_contact(X, approach_m, hand, object_points, table_z_m)}

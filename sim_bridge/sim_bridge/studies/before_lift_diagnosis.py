@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from gravgrasp_detector import atomic_files
+from gravgrasp_detector.perception.detection import FINGER_BASE_Z_M
 from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..benchmark import pick_diagnosis
@@ -192,8 +193,7 @@ def diagnose_round(results_dir, method, mass_kg, scene_id, model_paths: dict) ->
                 "attempt": n, "validness": rec["validness"],
                 "tcp_class": str(pick_diagnosis.surface_class(view[2], X[:3, 3])[0]),
                 "vgn_keeps": pick_diagnosis.vgn_keeps(view[2], X[:3, 3], mask),
-                "vgn_keeps_base": pick_diagnosis.vgn_keeps(view[2], X[:3, 3] + pick_diagnosis.VGN_TCP_Z_M * X[:3, 2],
-                                                           mask)})
+                "vgn_keeps_base": pick_diagnosis.vgn_keeps(view[2], X[:3, 3] + FINGER_BASE_Z_M * X[:3, 2], mask)})
         if not same or (n >= (last or 0) and "all_refused" not in wanted.values()):
             raise _Enough
         return result
