@@ -347,7 +347,9 @@ def report_lines(records: list) -> list:
 # the command
 
 
-def _round_files(results_dir, methods, weights, scenes):
+def round_files(results_dir, methods, weights, scenes=()):
+    """(method, kg, round file) of a benchmark run's rounds, only of `scenes` where given;
+    ValueError where a method has no rounds at a weight."""
     for method in methods:
         for kg in weights:
             folder = pathlib.Path(results_dir) / "rounds" / method / weight_key(kg)
@@ -398,7 +400,7 @@ def main(argv=None) -> int:
         scenes = {s for s in args.scenes.split(",") if s}
         rounds = 0
         for results in args.results or ["sim_bridge/results/heldout_v4"]:
-            for method, kg, f in _round_files(results, methods, weights, scenes):
+            for method, kg, f in round_files(results, methods, weights, scenes):
                 if not find_failures(json.loads(f.read_text())):
                     continue
                 if args.max_rounds is not None and rounds >= args.max_rounds:

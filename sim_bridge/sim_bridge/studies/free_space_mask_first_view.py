@@ -45,7 +45,7 @@ from ..benchmark.protocol import Protocol, weight_key
 from ..benchmark.replay import SurfaceSamples
 from ..benchmark.report import outcome_class
 from ..benchmark.rounds import RoundTask, make_cell
-from .before_lift_diagnosis import FAILURES, diagnose_view
+from .before_lift_diagnosis import FAILURES, diagnose_view, round_files
 
 MASKS = tuple(m for m in FREE_SPACE_MASKS if m != "off")
 
@@ -172,18 +172,14 @@ def main(argv=None) -> int:
         if not model.is_file():
             raise ValueError(f"model file {model} not found: pass --model PATH")
         for results in args.results or ["sim_bridge/results/heldout_v4"]:
-            for kg in parse_weights(args.weights):
-                folder = pathlib.Path(results) / "rounds" / args.method / weight_key(kg)
-                if not folder.is_dir():
-                    raise ValueError(f"no rounds in {folder}: see {pathlib.Path(results) / 'rounds'}")
-                for f in sorted(folder.glob("*.json")):
-                    target = out / "rounds" / pathlib.Path(results).name / args.method / weight_key(kg) / f.name
-                    if target.is_file():
-                        continue
-                    record = first_view(results, args.method, kg, f.stem, model)
-                    atomic_files.save_json(target, record)
-                    print(f"{target}: first attempt {record['outcome']}, repeated {record.get('same_pose')}, "
-                          f"{record['cpu_s']} s CPU", flush=True)
+            for method, kg, f in round_files(results, [args.method], parse_weights(args.weights)):
+                target = out / "rounds" / pathlib.Path(results).name / method / weight_key(kg) / f.name
+                if target.is_file():
+                    continue
+                record = first_view(results, method, kg, f.stem, model)
+                atomic_files.save_json(target, record)
+                print(f"{target}: first attempt {record['outcome']}, repeated {record.get('same_pose')}, "
+                      f"{record['cpu_s']} s CPU", flush=True)
     except ValueError as e:
         print(f"free_space_mask_first_view: {e}", file=sys.stderr)
         return 2
