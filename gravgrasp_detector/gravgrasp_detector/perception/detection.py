@@ -17,8 +17,11 @@ numpy until the final few grasps):
    of a surface; "finger_base" tests it where VGN's TCP would sit on the candidate's
    approach, FINGER_BASE_Z_M (5 cm, VGN's finger depth, behind the finger tips),
    from every candidate's rotation (VGN masks before its non-maximum suppression).
-2. validness = sigmoid(logit) >= validness_threshold and, ranked by a score (rank_by
-   "score" or "expected_score"), score_n >= min_score_n (and > 0).
+2. validness = sigmoid(logit) >= validness_threshold and score_n >= min_score_n (and
+   > 0 when ranked by a score, rank_by "score" or "expected_score"). Ranked by
+   validness, a model with a score still applies min_score_n: the surest grasps among
+   those predicted to hold a known payload (min_score_n = mass x g x a safety factor,
+   `payload_min_score_n`); a binary model has no score to apply it to.
 3. non-maximum suppression: keep a voxel only if its ranking key (rank_by: the score,
    validness or validness x score) is the maximum of the surviving keys in its
    (2 * nms_radius_voxels + 1)^3 neighbourhood.
@@ -42,6 +45,7 @@ bits: 0.125 N at 30 N) does not decide near-ties.
 The TCP position is the voxel centre: origin + (index + 0.5) * voxel_size_m.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +67,19 @@ FREE_SPACE_MASKS = ("off", "tcp", "finger_base")
 VGN_FINGER_DEPTH_M = 0.05
 FINGER_BASE_Z_M = FINGER_TIP_Z_M - VGN_FINGER_DEPTH_M  # where VGN's TCP would sit, in this TCP frame
 FREE_SPACE_DILATIONS = 2  # VGN's detection.py
+G_MPS2 = 9.81
+# A known payload asks for grasps predicted to hold this many times its weight: the
+# score's error is ~13 N (doc/score-calibration.md) and executed grasps hold less than
+# their labels; the stack's `score_safety_factor` default.
+PAYLOAD_SAFETY_FACTOR = 1.5
+
+
+def payload_min_score_n(mass_kg, safety_factor=PAYLOAD_SAFETY_FACTOR):
+    """The least gravity-rejection score [N] of a grasp trusted with `mass_kg`."""
+    if not (math.isfinite(mass_kg) and mass_kg >= 0 and math.isfinite(safety_factor) and safety_factor >= 1):
+        raise ValueError(f"payload {mass_kg} kg, safety factor {safety_factor}: give a mass >= 0 kg and a "
+                         "factor >= 1 (a grasp must hold at least the weight)")
+    return mass_kg * G_MPS2 * safety_factor
 
 
 @dataclass(frozen=True)
@@ -71,7 +88,7 @@ class DetectionOptions:
     and how the network runs. The detect node's parameters of the same names."""
 
     validness_threshold: float = 0.5
-    min_score_n: float = 0.0  # with rank_by "score" and "expected_score"
+    min_score_n: float = 0.0  # [N]; not applied for a model without a score (has_score False)
     max_grasps: int = 20
     surface_distance_voxels: int = 6
     nms_radius_voxels: int = 2  # 0: no non-maximum suppression
@@ -192,8 +209,8 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
     """Ranked grasps (list of Grasp, best first) in the TSDF's frame.
 
     With options.rank_by "score" they are ranked by the gravity-rejection score [N], at
-    least options.min_score_n; with "validness" by validness (min_score_n does not
-    apply); with "expected_score" by validness x score. Each Grasp's score_n is the
+    least options.min_score_n; with "validness" by validness (among grasps of at least
+    min_score_n when the model has a score); with "expected_score" by validness x score. Each Grasp's score_n is the
     score in N (NaN when options.has_score is False: a binary model's score head is
     untrained) and its rank_key what it was ranked by.
 
@@ -288,7 +305,7 @@ def free_space_band(grid, dilations=FREE_SPACE_DILATIONS):
     convention, numpy or torch: observed free space (grid > 0.5), grown by `dilations`
     six-connected steps that never enter observed inside (1e-3 < grid < 0.5). scipy's
     binary_dilation(grid > 0.5, iterations=dilations, mask=~inside), as VGN calls it."""
-    grid = torch.as_tensor(np.asarray(grid) if not torch.is_tensor(grid) else grid)
+    grid = torch.as_tensor(grid)
     may_grow = ~((grid > 1e-3) & (grid < 0.5))
     kept = grid > 0.5
     for _ in range(int(dilations)):
@@ -365,8 +382,10 @@ def select_grasps(
     if by_score:
         candidate &= (score_n >= options.min_score_n) & (score_n > 0)  # a grasp holding 0 N is none
         key = score_n
-    else:  # the score, if any, selects nothing: validness alone
+    else:  # validness ranks; a score, if any, only selects
         candidate &= validness > 0
+        if score_n is not None and options.min_score_n > 0:
+            candidate &= score_n >= options.min_score_n
         key = validness
     if rank_key is not None:
         key = torch.as_tensor(rank_key).float()
