@@ -115,7 +115,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     try:
         counts = prepare(args.source, args.out, [m for m in args.methods.split(",") if m], args.models_dir)
-    except (PairedRunError, ValueError) as e:
+    except ValueError as e:  # PairedRunError, or method_named's unknown method
         print(f"paired_run: {e}", file=sys.stderr)
         return 2
     print(f"paired_run: {args.out}: {counts['copied']} files copied from {args.source}, {counts['kept']} already there")
