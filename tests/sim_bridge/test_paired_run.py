@@ -46,7 +46,7 @@ def test_it_copies_the_run_and_the_named_methods_rounds_and_nothing_else(source,
     assert "rounds/ours/0.1/pile_000.json" in copied and "scenes/packed_000.json" in copied
 
 
-def test_the_benchmark_takes_the_copy_as_its_own_run(source, tmp_path, capsys):
+def test_the_benchmark_takes_the_copy_as_its_own_run(source, tmp_path):
     """--report with the source run's options: the copied config.json is the one the
     benchmark builds (else it refuses the directory) and the copied rounds are counted
     (their model's sha256 is the current model's, so a run would not redo them)."""
