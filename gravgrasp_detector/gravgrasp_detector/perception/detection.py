@@ -300,15 +300,15 @@ def near_surface_mask(grid, surface_distance_voxels):
     return cube_max((grid > 0) & (grid <= 0.5), surface_distance_voxels)
 
 
-def free_space_band(grid, dilations=FREE_SPACE_DILATIONS):
+def free_space_band(grid):
     """(R, R, R) bool tensor: VGN's mask (its detection.py's `process`) on a grid in tsdf.py's
-    convention, numpy or torch: observed free space (grid > 0.5), grown by `dilations`
+    convention, numpy or torch: observed free space (grid > 0.5), grown by FREE_SPACE_DILATIONS
     six-connected steps that never enter observed inside (1e-3 < grid < 0.5). scipy's
-    binary_dilation(grid > 0.5, iterations=dilations, mask=~inside), as VGN calls it."""
+    binary_dilation(grid > 0.5, iterations=2, mask=~inside), as VGN calls it."""
     grid = torch.as_tensor(grid)
     may_grow = ~((grid > 1e-3) & (grid < 0.5))
     kept = grid > 0.5
-    for _ in range(int(dilations)):
+    for _ in range(FREE_SPACE_DILATIONS):
         grown = kept.clone()
         for dim in range(3):
             n = kept.shape[dim]
