@@ -89,12 +89,17 @@ def test_the_clearance_boxes_are_the_open_hands_collision_geometry():
     ctx, inspector = plant.CreateDefaultContext(), scene_graph.model_inspector()
     X_tcp_W = plant.CalcRelativeTransform(ctx, hand.tcp_frame, plant.world_frame()).GetAsMatrix4()
     boxes = dict(zip(panda_hand.HAND_PARTS, panda_hand.OPEN_HAND_BOXES_TCP))
+    hulls = panda_hand.open_hand_hulls_tcp()
     for part, body in (("hand", "panda_hand"), ("left finger", "panda_leftfinger"), ("right finger", "panda_rightfinger")):
         body = plant.GetBodyByName(body)
         (g,) = plant.GetCollisionGeometriesForBody(body)
         v = trimesh.load(inspector.GetShape(g).source().path(), force="mesh").vertices
         X = X_tcp_W @ plant.EvalBodyPoseInWorld(ctx, body).GetAsMatrix4() @ inspector.GetPoseInFrame(g).GetAsMatrix4()
         v = v @ X[:3, :3].T + X[:3, 3]
+        # the exact hulls (pick diagnosis) are these vertices' hulls, placed as Drake places them
+        np.testing.assert_allclose(hulls[part].bounds, [v.min(0), v.max(0)], atol=1e-9)
+        assert trimesh.convex.is_convex(hulls[part])
+        assert hulls[part].volume == pytest.approx(trimesh.convex.convex_hull(v).volume, rel=1e-9)
         lo, hi = boxes[part]
         assert np.all(v.min(0) > lo - 2e-4) and np.all(v.max(0) < hi + 2e-4), part  # inside (pad face: -0.13 mm)
         # and tight: the hand's box is symmetric, its mesh reaches 100.4 mm to one side, 104 to the other
@@ -150,6 +155,9 @@ def test_a_cylinder_is_held_through_a_lift_with_the_grip_force(world):
     assert after.in_hand and after.lifted and after.grasp_mode == "precision"  # the palm stayed clear
     verdict = world.parallel_grip()
     assert verdict.held and verdict.objects == (after.name,), verdict
+    # what touches the hand, by name: the two fingers, the cylinder, nothing else
+    assert {(hand, other) for hand, other, _ in world.hand_touches()} == {
+        ("panda_leftfinger", after.name), ("panda_rightfinger", after.name)}
     assert world.finger_status()[1] == "blocked"
     assert np.mean(world.grip_force_n()) == pytest.approx(GRIP_N, abs=1.0)
     # what a wrist sensor reads: the weight, pulling down

@@ -98,3 +98,43 @@ def test_same_pick_within_2_cm_and_30_degrees_either_way_round():
     tilted = A.copy()
     tilted[:3, :3] = A[:3, :3] @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
     assert not pd.same_pick(A, tilted)
+
+
+def box_hulls(hand):
+    """A HandGeometry's boxes as convex hulls (trimesh), keyed by part."""
+    hulls = {}
+    for part, (lo, hi) in zip(hand.parts, hand.open_boxes_tcp):
+        hull = trimesh.creation.box(extents=hi - lo)
+        hull.apply_translation((lo + hi) / 2)
+        hulls[part] = hull
+    return hulls
+
+
+def test_first_contact_with_hulls_agrees_with_the_boxes():
+    """The same geometry as hulls or as boxes: the same first contact, straight down and
+    tilted 35 deg about the closing axis; and none where the box test finds none."""
+    hulls, points = box_hulls(ROBOTIQ_2F85), box_points()
+    c, s = np.cos(np.radians(35)), np.sin(np.radians(35))
+    tilted = top_down(0.17, 0.15, 0.09)
+    tilted[:3, :3] = tilted[:3, :3] @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    for X in (top_down(0.15, 0.15, 0.08), top_down(0.19, 0.13, 0.09), tilted):
+        boxes = pd.first_contact(X, 0.05, ROBOTIQ_2F85, points, table_z_m=-1.0)
+        with_hulls = pd.first_contact_hulls(X, 0.05, hulls, points)
+        assert boxes is not None and with_hulls["what"] == "box" and with_hulls["part"] == boxes["part"]
+        assert with_hulls["approach_m"] == pytest.approx(boxes["approach_m"], abs=2e-4)
+        assert with_hulls["short_m"] == pytest.approx(0.05 - with_hulls["approach_m"], abs=2e-4)
+        # the point met lies on its box's surface at the contact (given in the TCP frame at the grasp)
+        q = np.array(with_hulls["point_tcp_m"]) + (0.05 - with_hulls["approach_m"]) * np.array([0, 0, 1.0])
+        lo, hi = ROBOTIQ_2F85.open_boxes_tcp[ROBOTIQ_2F85.parts.index(with_hulls["part"])]
+        assert np.max(np.abs(q - (lo + hi) / 2) - (hi - lo) / 2) == pytest.approx(0, abs=2e-4)
+    assert pd.first_contact_hulls(top_down(0.15, -0.20, 0.30), 0.05, hulls, points) is None
+
+
+def test_a_point_enters_a_moving_hull_over_one_interval():
+    """A 2 cm cube 2-4 cm ahead of the TCP, moving 5 cm along z to the grasp pose: the point
+    at its centre there is met when its far face arrives, after 4 cm (1 cm short); a point
+    it holds at the pre-grasp at 0; one beside its path never."""
+    cube = trimesh.creation.box(extents=(0.02, 0.02, 0.02))
+    cube.apply_translation((0, 0, 0.03))
+    s = pd.entry_along_approach([[0, 0, 0.03], [0, 0, -0.015], [0.02, 0, 0.03]], cube, 0.05)
+    assert s[0] == pytest.approx(0.04) and s[1] == 0.0 and s[2] == np.inf

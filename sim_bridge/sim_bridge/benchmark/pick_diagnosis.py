@@ -164,6 +164,46 @@ def first_contact(X_grasp, approach_m: float, hand, object_points: dict, table_z
     return {"approach_m": round(best[0], 4), "short_m": round(d - best[0], 4), "what": best[1], "part": best[2]}
 
 
+def entry_along_approach(q_tcp, hull, approach_m: float) -> np.ndarray:
+    """(N,) the approach distance (0..approach_m from the pre-grasp) at which each point
+    first lies in a convex hull (trimesh, TCP frame) moving with the TCP; inf if never.
+    q_tcp: the points in the TCP frame at the grasp pose, where the hull has come
+    approach_m - s short at approach s, so a point sits at q + (approach_m - s) z. Each
+    face plane n.x <= offset bounds s on one side, so the answer is exact per point."""
+    q, d = np.asarray(q_tcp, float).reshape(-1, 3), float(approach_m)
+    n = hull.face_normals
+    offset = np.einsum("ij,ij->i", n, hull.vertices[hull.faces[:, 0]])
+    lhs = q @ n.T + d * n[:, 2] - offset  # n.(q + d z) - offset - s n_z <= 0
+    nz = np.broadcast_to(n[:, 2], lhs.shape)
+    flat = np.abs(nz) < 1e-12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = lhs / np.where(flat, 1.0, nz)
+    lo = np.max(np.where(nz > 0, bound, -np.inf), axis=1, initial=-np.inf)
+    hi = np.min(np.where(nz < 0, bound, np.inf), axis=1, initial=np.inf)
+    ok = np.all(~flat | (lhs <= 1e-12), axis=1) & (lo <= hi) & (hi >= 0) & (lo <= d)
+    return np.where(ok, np.maximum(lo, 0.0), np.inf)
+
+
+def first_contact_hulls(X_grasp, approach_m: float, hulls: dict, object_points: dict) -> dict | None:
+    """first_contact with the hand's true convex hulls ({part: trimesh in the TCP frame},
+    e.g. physics.panda_hand.open_hand_hulls_tcp()) instead of its boxes, objects only:
+    {approach_m, short_m, what, part, point_tcp_m: the surface point met, in the TCP
+    frame at the grasp pose}, or None when the approach reaches the grasp pose clear."""
+    X = np.asarray(X_grasp, float)
+    best = None
+    for name, points in object_points.items():
+        q = (np.asarray(points, float) - X[:3, 3]) @ X[:3, :3]
+        for part, hull in hulls.items():
+            s = entry_along_approach(q, hull, approach_m)
+            i = int(np.argmin(s))
+            if np.isfinite(s[i]) and (best is None or s[i] < best["approach_m"]):
+                best = {"approach_m": float(s[i]), "what": name, "part": part, "point_tcp_m": q[i]}
+    if best is None:
+        return None
+    return {**best, "approach_m": round(best["approach_m"], 4), "short_m": round(approach_m - best["approach_m"], 4),
+            "point_tcp_m": np.round(best["point_tcp_m"], 4).tolist()}
+
+
 def same_pick(X_a, X_b, max_distance_m: float = SAME_PICK_M, max_angle_deg: float = SAME_PICK_DEG) -> bool:
     """Whether two grasps are the same pick: TCPs within max_distance_m and orientations
     within max_angle_deg, either of a parallel hand's two symmetric orientations."""

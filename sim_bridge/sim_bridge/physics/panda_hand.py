@@ -70,6 +70,29 @@ def _open_hand_boxes_tcp() -> np.ndarray:
 
 OPEN_HAND_BOXES_TCP = _open_hand_boxes_tcp()  # (lo, hi) corners [m], in the order of HAND_PARTS
 
+
+def open_hand_hulls_tcp(baselines_dir=None) -> dict:
+    """{part: trimesh} the open hand's collision geometry in the TCP frame, fingers at
+    40 mm: the convex hull of each collision mesh, which is what Drake collides (and what
+    PyBullet collided for VGN). Exact where OPEN_HAND_BOXES_TCP bounds; parts "hand",
+    "right finger", "left finger"."""
+    import trimesh  # lazy: only diagnostics need the meshes themselves
+
+    def hull(mesh):
+        return trimesh.load(baseline_file(f"panda_hand/meshes/collision/{mesh}.obj", baselines_dir),
+                            force="mesh").convex_hull
+
+    def moved(mesh, xyz, turn=False):
+        X = np.eye(4)
+        if turn:  # the URDF turns the right finger's mesh 180 deg about z
+            X[:2, :2] = -np.eye(2)
+        X[:3, 3] = np.add(xyz, (0.0, 0.0, -HAND_TO_TCP_M))
+        return mesh.copy().apply_transform(X)
+    finger = hull("finger")
+    return {"hand": moved(hull("hand"), (0.0, 0.0, 0.0)),
+            "right finger": moved(finger, (0.0, -FINGER_TRAVEL_M, FINGER_JOINT_Z_M), turn=True),
+            "left finger": moved(finger, (0.0, FINGER_TRAVEL_M, FINGER_JOINT_Z_M))}
+
 LEFT_LINKS = ("panda_leftfinger",)
 RIGHT_LINKS = ("panda_rightfinger",)
 PALM_LINKS = ("panda_hand",)

@@ -51,6 +51,16 @@ def hand_contacts(model, plant_context) -> list:
     return out
 
 
+def hand_touches(model, plant_context) -> list:
+    """hand_contacts by body name: (hand link, the other body, force on the hand [3] N)."""
+    inspector = model.scene_graph.model_inspector()
+    body_of = {}
+    for g in inspector.GetAllGeometryIds():
+        body = model.plant.GetBodyFromFrameId(inspector.GetFrameId(g))
+        body_of[g.get_value()] = body.name() if body is not None else inspector.GetName(g)
+    return [(body_of[h], body_of[o], f) for h, o, f in hand_contacts(model, plant_context)]
+
+
 def _hand_contact_pairs(model, plant_context):
     """(hand geometry id value, other geometry id value) of every hand contact."""
     results = model.plant.get_contact_results_output_port().Eval(plant_context)

@@ -52,7 +52,7 @@ from pydrake.systems.analysis import Simulator
 
 from .camera import SceneMeshes, camera_intrinsics, camera_pose, render_depth
 from .config import R_TOP_DOWN, SceneConfig, WorldSettings, pose
-from .contacts import finger_squeeze_n, hand_contacts, object_states
+from .contacts import finger_squeeze_n, hand_contacts, hand_touches, object_states
 from .diagram import build_world_diagram
 from .fingers import Fingers
 from .motion import Motion, check_reachable
@@ -321,6 +321,12 @@ class SimWorld:
             for _, _, force in hand_contacts(self._model, self._plant_context()):
                 total += force
             return total
+
+    def hand_touches(self) -> list:
+        """What touches the hand now: (hand link, other body, force on the hand [3] N) per
+        contact, by body name (an object's body is named as the object)."""
+        with self.lock:
+            return hand_touches(self._model, self._plant_context())
 
     # -- fingers ------------------------------------------------------------------
 
