@@ -255,7 +255,8 @@ def test_validness_ranking_for_a_binary_model():
     """rank_by="validness" (a --target binary model): ranked by validness, min_score_n in N
     does not apply; a binary model's grasps carry score_n NaN (its score head is untrained,
     and score_n is newtons, never a probability) and rank_key = validness. A score model
-    ranked by validness gives the same grasps, each with its score in N."""
+    ranked by validness gives the same grasps, each with its score in N, and applies
+    min_score_n (a known payload's floor) before ranking by validness."""
     torch.manual_seed(0)
     net = networks.GraspNet().eval()
     grid = table_grid().numpy()
@@ -266,12 +267,24 @@ def test_validness_ranking_for_a_binary_model():
     assert not by_score and by_validness  # no grasp holds 1e6 N; probabilities ignore it
     assert [g.validness for g in by_validness] == sorted((g.validness for g in by_validness), reverse=True)
     assert all(math.isnan(g.score_n) and g.rank_key == g.validness for g in by_validness)
-    scored = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(binary, has_score=True))
-    assert [g.voxel_index for g in scored] == [g.voxel_index for g in by_validness]
+    scored = dataclasses.replace(binary, has_score=True, min_score_n=0.0)
+    by_validness_n = detection.detect_grasps(net, grid, VS, options=scored)
+    assert [g.voxel_index for g in by_validness_n] == [g.voxel_index for g in by_validness]
     with torch.inference_mode():
         score_n = net.score_and_validness_from_half(net.half_features(torch.from_numpy(grid)[None, None]))[0][0]
-    assert [g.score_n for g in scored] == pytest.approx([float(score_n[g.voxel_index]) for g in scored], abs=1e-5)
-    assert all(g.rank_key == g.validness for g in scored)
+    assert [g.score_n for g in by_validness_n] == pytest.approx(
+        [float(score_n[g.voxel_index]) for g in by_validness_n], abs=1e-5)
+    assert all(g.rank_key == g.validness for g in by_validness_n)
+    assert not detection.detect_grasps(net, grid, VS, options=dataclasses.replace(scored, min_score_n=1e6))
+    floor_n = float(np.median([g.score_n for g in by_validness_n]))  # some grasps above it, some below
+    payload = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(scored, min_score_n=floor_n))
+    assert payload and all(g.score_n >= floor_n for g in payload)
+    assert [g.validness for g in payload] == sorted((g.validness for g in payload), reverse=True)
+    assert {g.voxel_index for g in payload} != {g.voxel_index for g in by_validness_n}
+    assert detection.payload_min_score_n(1.5) == pytest.approx(1.5 * 9.81 * detection.PAYLOAD_SAFETY_FACTOR)
+    for mass_kg, factor in ((-1.0, 1.5), (math.nan, 1.5), (1.0, 0.5)):
+        with pytest.raises(ValueError, match="give a mass >= 0 kg and a factor >= 1"):
+            detection.payload_min_score_n(mass_kg, factor)
     with pytest.raises(ValueError, match="rank_by"):
         detection.DetectionOptions(rank_by="probability")
     with pytest.raises(ValueError, match="has_score is False"):

@@ -99,9 +99,12 @@ def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, 
     expected["all"] = sum(expected.values())
     assert {name: row["n"] for name, row in report["modes"].items()} == expected
     assert lines[-1] == f"score_mae_n={report['modes']['all']['mae_n']:.2f}"
-    assert lines[-5].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
-    assert lines[-4].startswith("score ranking: top 1 on a label ") and lines[-3].startswith("expected_score ranking:")
-    assert set(report["top_picks"]) == {"score", "expected_score", "validness"}
+    assert lines[-6].startswith("validness near surfaces:") and report["validness"]["voxels"] > 0
+    assert lines[-5].startswith("score ranking: top 1 on a label ") and lines[-4].startswith("expected_score ranking:")
+    assert lines[-2].startswith("told the mass (by validness among grasps scored >= 1.5 x m g): top 1 on a label "
+                                "holding 0.1 kg ")
+    assert set(report["top_picks"]) == {"score", "expected_score", "validness"} | {
+        f"told_{m:g}kg" for m in score_calibration.HOLDS_KG}
     assert (out / "calibration.png").stat().st_size > 5000
 
     assert score_calibration.main(["--model", str(model_path), "--data", str(scenes), "--split", "all",
@@ -183,5 +186,7 @@ def test_a_pick_holds_the_weights_its_closest_label_holds(scenes, tmp_path, monk
     monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: seen.append(
         options.validness_threshold) or [])
     score_calibration.top_picks(None, {}, [edited], 0.0075, validness_threshold=0.9)
-    assert seen == [0.9] * 3  # each ranking detects with the threshold asked for
+    assert seen == [0.9] * (3 + len(score_calibration.HOLDS_KG))  # each ranking with the threshold asked for
+    told = score_calibration.pick_options("told_1.5kg", True, 0.5)
+    assert told.rank_by == "validness" and told.min_score_n == pytest.approx(1.5 * 9.81 * 1.5)
     assert score_calibration.label_score_at(training_scenes.load_scene(edited), Grasp(np.eye(4), 1.0, 1.0, (0, 0, 0))) is None

@@ -136,6 +136,26 @@ def test_a_method_added_as_one_entry_runs_a_round_on_its_own_hand(tmp_path, monk
     assert record["end"] == "table_clear" and record["successes"] == 1
 
 
+def test_a_method_told_the_payload_gets_each_rounds_mass_and_the_others_do_not(tmp_path, monkeypatch):
+    """Method.told_payload (ours_mass): make_cell passes the round's mass as payload_kg;
+    a method not told keeps the plain make(path, protocol)."""
+    scene, _ = cylinder_scene()
+    made = []
+
+    def make_detector(path, proto, **told):
+        made.append(told)
+        return methods.Detector(lambda view: [], tsdf.TSDFVolume(resolution=40), "gravity-score")
+
+    (tmp_path / "toy.txt").write_text("the toy's file")
+    for name, told in (("told", True), ("untold", False)):
+        monkeypatch.setitem(methods.METHODS, name, methods.Method(name, "2f85", make_detector, "toy.txt",
+                                                                  told_payload=told))
+        path = bench_rounds.resolve_methods([name], tmp_path, note=pytest.fail)[name]
+        for mass_kg in (0.1, 1.5):
+            bench_rounds.make_cell(bench_rounds.RoundTask(name, path, "sha", mass_kg, scene, protocol.Protocol()))
+    assert made == [{"payload_kg": 0.1}, {"payload_kg": 1.5}, {}, {}]
+
+
 @needs_panda
 def test_the_panda_cell_reads_a_grasp_on_nothing_as_no_object():
     scene, height_m = cylinder_scene()

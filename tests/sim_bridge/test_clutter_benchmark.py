@@ -328,6 +328,29 @@ def test_the_masked_variant_takes_only_grasps_vgns_mask_keeps_of_its_base_method
     assert masked and all(kept(g) for g in masked)
     assert any(not kept(g) for g in every)  # the paper's selection takes grasps the mask drops
 
+def test_the_method_told_the_mass_takes_the_surest_grasps_predicted_to_hold_it(tmp_path):
+    """ours_mass keeps the grasps scored >= 1.5 x m g and ranks them by validness; a binary
+    model has no score to keep them by (one sentence). make_cell tells it each round's mass
+    (test_benchmark_methods)."""
+    path = save_test_model(tmp_path / "gravgrasp.pt", validness_bias=0.0)
+    method = methods.METHODS["ours_mass"]
+    assert method.told_payload and method.file_of == "ours" and not methods.METHODS["ours"].told_payload
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3
+    grid[10:30, 10:30, 12] = 0.5
+    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
+    every = methods.METHODS["ours"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
+    scores = sorted(g.score_n for g in every)
+    mass_kg = scores[len(scores) // 2] / (9.81 * detection.PAYLOAD_SAFETY_FACTOR)  # half the grasps hold it
+    told = method.make(str(path), p, payload_kg=mass_kg).detect((grid, 0.0075, np.zeros(3)))
+    assert told and all(g.score_n >= detection.payload_min_score_n(mass_kg) for g in told)
+    assert [g.rank_key for g in told] == sorted((g.validness for g in told), reverse=True)
+    assert len(told) < len(every)
+    binary = save_test_model(tmp_path / "binary.pt", target="binary")
+    with pytest.raises(ValueError, match="has none"):
+        method.make(str(binary), p, payload_kg=1.0)
+
+
 def save_test_model(path, validness_bias=5.0, target="gravity-score"):
     """Random init, made to propose top-down grasps (closing along task y) at every
     near-surface voxel, so a round executes real attempts."""

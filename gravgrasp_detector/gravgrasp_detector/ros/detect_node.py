@@ -115,7 +115,8 @@ class DetectNode(Node):
         ranking = p("ranking", "model", described(
             "How grasps are ranked among those past the thresholds: 'model' (a score model by its "
             "gravity-rejection score, the paper's rule; a binary model by validness), 'score', "
-            "'expected_score' (validness x score), or 'validness'", read_only=True)).value
+            "'expected_score' (validness x score), or 'validness' (a score model: the surest among grasps of at "
+            "least min_score_n, e.g. a known payload's weight x g x safety factor)", read_only=True)).value
         p("pregrasp_distance_m", 0.05, float_range("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
         p("clear_hand", False, described(
             "Publish only grasps whose open hand, swept from the pre-grasp, clears the observed scene (the "

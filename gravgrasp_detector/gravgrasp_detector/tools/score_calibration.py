@@ -8,7 +8,8 @@ DIR/calibration.json, and prints per mode the number of labels, the MAE [N] and
 Spearman's rank correlation, then validness precision / recall at the deployed threshold
 and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
 of a scene land under each ranking the model allows (`model_file.ranking`: score,
-expected_score and validness for a score model): on a labelled voxel (a grasp there held), on an explicit
+expected_score and validness for a score model, and told_<m>kg: by validness among the
+grasps scored >= 1.5 x m g, a detector told the payload m): on a labelled voxel (a grasp there held), on an explicit
 negative (a simulated failure or a colliding pose there), or on neither, and how many top-1
 picks landed on a label whose simulated f_g holds 0.1 / 0.5 / 1.5 / 2.5 / 4 kg (f_g >= m g:
 the benchmark's weights in label physics); last line `score_mae_n=<all modes>`.
@@ -34,7 +35,7 @@ from scipy.stats import spearmanr
 
 from ..atomic_files import save_figure, save_json
 from ..perception import model_file
-from ..perception.detection import DetectionOptions, detect_grasps, near_surface_mask
+from ..perception.detection import DetectionOptions, detect_grasps, near_surface_mask, payload_min_score_n
 from ..training.config import TrainConfig
 from ..training.losses import auroc
 from ..training.scenes import G_MPS2, DataError, load_scene, split_scenes
@@ -97,6 +98,21 @@ def label_score_at(scene, grasp):
     return float(scene["score"][rows[np.argmin(angle)]])
 
 
+def told_ranking(mass_kg):
+    """The top_picks ranking of a detector told the payload: "told_<m>kg"."""
+    return f"told_{mass_kg:g}kg"
+
+
+def pick_options(ranking, has_score, validness_threshold):
+    """detect's options for a top_picks ranking: detect's own (score, expected_score,
+    validness), or told_<m>kg: by validness among the grasps scored >= 1.5 x m g (the
+    benchmark's ours_mass, a cell's stack.object_mass_kg)."""
+    told = ranking.startswith("told_")
+    return DetectionOptions(max_grasps=max(TOP_K), has_score=has_score, validness_threshold=validness_threshold,
+                            rank_by="validness" if told else ranking,
+                            min_score_n=payload_min_score_n(float(ranking[5:-2])) if told else 0.0)
+
+
 @torch.inference_mode()
 def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
               validness_threshold=DetectionOptions().validness_threshold):
@@ -105,8 +121,9 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
     label whose f_g holds each of HOLDS_KG. A voxel that is neither may hold a grasp
     nobody simulated: "label" is a lower bound on picks that hold, "negative" an upper
     bound on none of them."""
+    has_score = model_file.has_score(metadata)
     if rankings is None:
-        rankings = (["score", "expected_score", "validness"] if model_file.has_score(metadata)
+        rankings = (["score", "expected_score", "validness"] + [told_ranking(m) for m in HOLDS_KG] if has_score
                     else ["validness"])
     out = {r: {k: {"label": 0, "negative": 0, "neither": 0, "holds_kg": {str(m): 0 for m in HOLDS_KG}}
                for k in TOP_K} for r in rankings}
@@ -115,9 +132,7 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
         negatives = {tuple(v) for v in scene["negative_index"].tolist()}
         for r in rankings:
             grasps = detect_grasps(model, scene["tsdf"], voxel_size_m,
-                                   options=DetectionOptions(max_grasps=max(TOP_K), rank_by=r,
-                                                           has_score=model_file.has_score(metadata),
-                                                           validness_threshold=validness_threshold))
+                                   options=pick_options(r, has_score, validness_threshold))
             for k in TOP_K:
                 for g in grasps[:k]:
                     f_g = label_score_at(scene, g)
@@ -244,12 +259,19 @@ def main(argv=None):
     print(f"validness near surfaces: {validness['voxels']} voxels, {validness['labelled_valid']} labelled valid; "
           f"at {validness['threshold']:g}: precision={validness['precision']:.4f} recall={validness['recall']:.3f} "
           f"auroc={validness['auroc']:.4f}")
+    told = {r: by_k[1] for r, by_k in picks.items() if r.startswith("told_")}
     for r, by_k in picks.items():
+        if r in told:
+            continue
         n = {k: max(c["label"] + c["negative"] + c["neither"], 1) for k, c in by_k.items()}
         print(f"{r} ranking: " + "; ".join(
             f"top {k} on a label {c['label'] / n[k]:.2f}, on a negative {c['negative'] / n[k]:.2f} ({n[k]} picks)"
             for k, c in by_k.items()) + "; top 1 on a label holding " + ", ".join(
             f"{m} kg {held / n[1]:.2f}" for m, held in by_k[1]["holds_kg"].items()))
+    if told:  # each its own weight: the top 1 of the detector told m, on a label holding m
+        print("told the mass (by validness among grasps scored >= 1.5 x m g): top 1 on a label holding "
+              + ", ".join(f"{r[5:-2]} kg {c['holds_kg'][str(float(r[5:-2]))] / len(files):.2f}" for r, c in told.items())
+              + f" (of {len(files)} scenes)")
     print(f"score_mae_n={summary['all']['mae_n']:.2f}")
     return 0
 

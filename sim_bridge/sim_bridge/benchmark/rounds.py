@@ -47,7 +47,8 @@ def make_cell(task: RoundTask) -> tuple:
     """(SimCell of the round's scene and weight with its method's detector and hand,
     the methods.Detector)."""
     method = method_of(task.method, task.model_path)
-    detector = method.make(task.model_path, task.protocol)
+    told = {"payload_kg": task.mass_kg} if method.told_payload else {}
+    detector = method.make(task.model_path, task.protocol, **told)
     cell = SimCell(task.scene, task.mass_kg, task.protocol, detector.volume, detector.detect, method.hand,
                    task.baselines_dir)
     return cell, detector

@@ -47,6 +47,9 @@ class Method:
     # Other files `make` reads from beside its file (the same directory; VN-EdgeGraspNet's
     # four checkpoints): `locate` checks them too. Only `file`'s sha256 names the detector.
     companions: tuple = ()
+    # Told each round's object mass: `make(path, protocol, payload_kg=mass)` (a detector
+    # that selects by a known payload; the others are not told).
+    told_payload: bool = False
 
     def __post_init__(self):
         if self.where not in (MODELS, BASELINES):
