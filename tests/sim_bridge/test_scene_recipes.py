@@ -226,3 +226,30 @@ def test_table_size_study_relabels_with_cut_tables(grasp_data, made, tmp_path, c
     assert last == f"labels_per_scene_median_at_1000={np.median(list(recorded.values())):g}"
     assert table_size_study.main(argv) == 0  # resumes: nothing left to do, same answer
     assert capsys.readouterr().out.strip().splitlines()[-1] == last
+
+
+def test_restore_writes_only_a_models_validation_scenes_when_asked(grasp_data, made, tmp_path, capsys):  # noqa: F811
+    """--validation-of MODEL: the scenes that model's training held out (its seed and
+    fraction, split by file name), what score_calibration reads, and no others; an
+    unreadable model file is one sentence."""
+    from gravgrasp_detector.perception import model_file, networks
+    from gravgrasp_detector.perception.tsdf import TSDFVolume
+    from gravgrasp_detector.training.scenes import split_scenes
+
+    recipes = tmp_path / "recipes"
+    assert datagen(["recipes", "pack", str(made), str(recipes)]) == 0
+    names = [f"{i:06d}.npz" for i in range(4)]
+    seed = next(s for s in range(100) if 0 < len(split_scenes(names, 0.5, s)[1]) < 4)
+    model = tmp_path / "m.pt"
+    model_file.save_model(model, networks.GraspNet(), TSDFVolume(),
+                          training_data={"config": {"validation_fraction": 0.5, "seed": seed}})
+    out = tmp_path / "val"
+    base = ["recipes", "restore", str(recipes), str(out), "--objects", str(grasp_data / "objects"),
+            "--meshes", str(grasp_data / "meshes"), "--workers", "1", "--no-progress"]
+    capsys.readouterr()
+    assert datagen(base + ["--validation-of", str(model)]) == 0
+    assert sorted(f.name for f in (out / "scenes").glob("*.npz")) == split_scenes(names, 0.5, seed)[1]
+    (tmp_path / "junk.pt").write_text("not a model")
+    assert datagen(base + ["--validation-of", str(tmp_path / "junk.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("datagen recipes: --validation-of:"), err

@@ -230,8 +230,9 @@ def restore_scene(task: RestoreTask):
 
 
 def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=None, progress=True,
-            relabel=False) -> dict:
-    """Write the scene files of recipe_dir that out_dir lacks. With relabel, the grasp
+            relabel=False, keep=None) -> dict:
+    """Write the scene files of recipe_dir that out_dir lacks (and, with `keep`, whose file
+    name it accepts: e.g. a model's validation scenes). With relabel, the grasp
     tables may be others than those that labelled the scenes (same object shapes).
     -> {restored, differing (labels unlike the recorded digest), errors (messages), scenes,
         label_counts ({index: (recorded, now)} of the scenes written)}."""
@@ -282,7 +283,8 @@ def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=Non
     else:
         atomic_files.save_json(mpath, here)
     tasks = [RestoreTask(scene_task(manifest, i, r, objects_dir, names, mesh_dirs), r)
-             for i, r in sorted(recipes.items()) if not store.path(i).exists()]
+             for i, r in sorted(recipes.items())
+             if not store.path(i).exists() and (keep is None or keep(store.path(i).name))]
     errors, differing, label_counts = [], [], {}
 
     def on_result(task, result):
