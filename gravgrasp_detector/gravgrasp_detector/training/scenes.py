@@ -26,7 +26,8 @@ class DataError(RuntimeError):
 
 def load_scene(path):
     """A scene file -> dict(tsdf (R,R,R) float32, index (K,3) int64, score (K,),
-    e_x (K,3), e_z (K,3), mode (K,) or None, negative_index (M,3) int64)."""
+    e_x (K,3), e_z (K,3), mode (K,) or None, negative_index (M,3) int64,
+    negative_reason (M,) int64)."""
     try:
         with np.load(path) as z:
             scene = {
@@ -41,6 +42,9 @@ def load_scene(path):
                 "negative_index": (z["negative_index"].astype(np.int64).reshape(-1, 3) if "negative_index" in z
                                    else np.zeros((0, 3), np.int64)),
             }
+            # why each is one (scene_dataset's codes; 0 where a file does not say)
+            scene["negative_reason"] = (z["negative_reason"].astype(np.int64).reshape(-1) if "negative_reason" in z
+                                        else np.zeros(len(scene["negative_index"]), np.int64))
     except (OSError, KeyError, ValueError) as err:
         raise DataError(f"scene file {path} is unreadable or lacks tsdf/label_* arrays ({err}); "
                         "regenerate it with 'ros2 run sim_bridge datagen scenes'") from None
