@@ -257,6 +257,50 @@ def test_a_bad_guard_distance_is_one_clear_error(tmp_path, capsys, bad):
     assert not (tmp_path / "o").exists()  # nothing started
 
 
+def test_a_procedural_seed_draws_other_objects_is_recorded_and_a_resume_keeps_it(tmp_path, capsys, monkeypatch):
+    """--procedural-seed 2000 (a confirmation run on objects no choice was tuned on): its
+    own pool and scenes, in config.json and results.md; that --out refuses another seed."""
+    def pool_kinds(seed):  # the objects themselves: names are per index (proc<seed>_i), kinds are not
+        usable, excluded = protocol.object_pool(None, procedural_seed=seed)
+        return [s.load().name for s in usable], [e["name"] for e in excluded]
+
+    assert pool_kinds(2000) != pool_kinds(protocol.PROCEDURAL_SEED)
+
+    def scripted_round(task):  # a round record without Drake (what write_outputs reads)
+        return {"schema_version": 2, "method": task.method, "hand": "2f85", "model_sha256": task.model_sha256,
+                "target": "gravity-score", "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
+                "objects": [], "n_objects": 0, "left_before_start": [], "settle_s": 0.0, "end": "table_clear",
+                "attempts": [], "fell_off": [], "successes": 0, "sim_time_s": 0.0, "cpu_s": 0.0,
+                "machine": "test", "execution": dict(protocol.LEGACY_EXECUTION)}
+
+    monkeypatch.setattr(bench_rounds, "run_round", scripted_round)
+    save_test_model(tmp_path / "m.pt")
+    out = tmp_path / "o"
+    argv = ["--out", str(out), "--methods", "", "--model", f"ours={tmp_path / 'm.pt'}", "--scenes", "1",
+            "--weights", "0.1", "--workers", "0", "--no-progress", "--execution", "v4"]
+    assert cb.main(argv + ["--procedural-seed", "2000"]) == 0
+    assert json.loads((out / "config.json").read_text())["procedural_seed"] == 2000
+    scene = json.loads((out / "scenes" / "packed_000.json").read_text())
+    assert [o["source"]["proc_seed"] for o in scene["objects"]] == [2000] * protocol.OBJECTS_PER_SCENE
+    assert "objects: procedural (seed 2000)" in (out / "results.md").read_text()
+    capsys.readouterr()
+    for other in ([], ["--procedural-seed", "3000"]):  # the default (1000) is another seed too
+        assert cb.main(argv + other) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "seed 2000, not" in err and "--procedural-seed 2000" in err, err
+    assert cb.main(argv + ["--procedural-seed", "2000", "--report"]) == 0
+
+
+def test_the_training_seed_and_a_seed_with_meshes_are_one_clear_error_each(tmp_path, capsys):
+    out = tmp_path / "o"
+    for extra, says in ((["--procedural-seed", "0"], "trained on"),
+                        (["--procedural-seed", "2000", "--meshes", str(tmp_path)], "--meshes replaces")):
+        code = cb.main(["--out", str(out), "--methods", "", "--model", f"x={tmp_path}/m.pt", *extra])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and says in err, err
+    assert not out.exists()  # nothing started
+
+
 def test_missing_model_is_skipped_with_a_note(tmp_path):
     notes = []
     save_test_model(tmp_path / "gravgrasp.pt")

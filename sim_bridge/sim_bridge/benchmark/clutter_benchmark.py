@@ -7,7 +7,8 @@ Protocol (one *round* = one method, one object weight, one scene):
   from a seed derived from the master seed (scenes/<id>.json), so every method and
   weight clears the same scenes. Every object of a round gets the round's weight.
 - Objects: procedural primitives with procedural seed 1000 by default (training uses
-  seed 0: disjoint), or `--meshes DIR` (URDF/OBJ; `--only FILE` keeps the meshes it
+  seed 0: disjoint; `--procedural-seed N` draws others, e.g. 2000 for a confirmation run on
+  objects no choice was tuned on), or `--meshes DIR` (URDF/OBJ; `--only FILE` keeps the meshes it
   names, e.g. the held-out list models/vgn_heldout_meshes.txt). Objects wider than the 85 mm stroke
   in every direction (minimum width of the collision hull) are removed before the run
   and listed (excluded_objects.json, results.md), as the paper did.
@@ -66,8 +67,8 @@ from ..physics.objects import ObjectError
 from . import failed_rounds
 from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
-                       QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, Protocol, execution_of_run,
-                       weight_key)
+                       QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, PROCEDURAL_SEED,
+                       TRAINING_PROCEDURAL_SEED, Protocol, execution_of_run, weight_key)
 from .rounds import resolve_methods, run_benchmark
 
 # CLI
@@ -105,6 +106,9 @@ def main(argv=None) -> int:
     p.add_argument("--only", default=None, metavar="FILE",
                    help="with --meshes: use only the meshes named in FILE (one name per line, e.g. "
                         "models/vgn_heldout_meshes.txt)")
+    p.add_argument("--procedural-seed", type=int, default=None, metavar="N",
+                   help=f"the procedural objects' seed (not with --meshes); default {PROCEDURAL_SEED}, the one the "
+                        "protocol was tuned on; recorded in config.json")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count; 0 = this process)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786")
@@ -153,6 +157,18 @@ def main(argv=None) -> int:
         except ObjectError as e:
             print(f"benchmark: --only: {e}", file=sys.stderr)
             return 2
+    if args.procedural_seed is not None and args.meshes:
+        print("benchmark: --procedural-seed draws the procedural objects, which --meshes replaces: give one "
+              "of them", file=sys.stderr)
+        return 2
+    procedural_seed = PROCEDURAL_SEED if args.procedural_seed is None else args.procedural_seed
+    if procedural_seed == TRAINING_PROCEDURAL_SEED:
+        print(f"benchmark: --procedural-seed {procedural_seed} draws the objects the models were trained on: "
+              f"give another seed (default {PROCEDURAL_SEED}, the tuning seed)", file=sys.stderr)
+        return 2
+    if procedural_seed < 0:
+        print(f"benchmark: --procedural-seed {procedural_seed}: give a seed >= 1", file=sys.stderr)
+        return 2
     overrides = {}
     for item in args.model:
         name, sep, path = item.partition("=")
@@ -186,7 +202,8 @@ def main(argv=None) -> int:
         rows = run_benchmark(out, methods, weights, n_scenes, args.seed, args.meshes, protocol,
                              args.workers, args.scheduler, progress=not args.no_progress,
                              ablation_weights_kg=ablation, only_meshes=only, report_only=args.report,
-                             baselines_dir=args.baselines, retry_failed=args.retry_failed)
+                             baselines_dir=args.baselines, retry_failed=args.retry_failed,
+                             procedural_seed=procedural_seed)
     except (ObjectError, ValueError) as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2

@@ -86,9 +86,11 @@ def summarize(rounds: list, plan: dict) -> list:
     return rows
 
 
-def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=None, failed=None) -> list:
+def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=None, failed=None,
+                  procedural_seed=PROCEDURAL_SEED) -> list:
     """results.md, results.json, comparisons.json, attempts.json and the plot from the rounds
-    on disk; `failed`: failed_rounds.load's records (listed, not counted)."""
+    on disk; `failed`: failed_rounds.load's records (listed, not counted); `procedural_seed`:
+    the run's (config.json), named in the header."""
     rounds = []
     for method, weights_kg in plan.items():
         for w in weights_kg:
@@ -122,7 +124,7 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     atomic_files.save_json(out / "results.json", rows)
     comparisons = with_paired(compare_to(rows), compare_paired(rounds))
     atomic_files.save_json(out / "comparisons.json", comparisons)
-    objects = (f"procedural (seed {PROCEDURAL_SEED})" if not meshes_dir else f"meshes in {os.path.relpath(os.path.realpath(meshes_dir))}"
+    objects = (f"procedural (seed {procedural_seed})" if not meshes_dir else f"meshes in {os.path.relpath(os.path.realpath(meshes_dir))}"
                + (f", only the {len(only)} listed in --only" if only is not None else ""))
     expected = len(ids)
     lines = ["# Clutter-removal benchmark against object weight", "",

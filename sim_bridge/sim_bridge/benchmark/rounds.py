@@ -110,14 +110,16 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
                   ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None,
-                  retry_failed=False) -> list:
+                  retry_failed=False, procedural_seed=PROCEDURAL_SEED) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
     `methods`: {name: its file's path} (resolve_methods); `baselines_dir`: where the
     Panda hand's files are (None: physics.baseline_files' default); ABLATION_METHODS run at `ablation_weights_kg` if given;
     `only_meshes`: names of the meshes in `meshes_dir` to draw scenes from (None: all);
     `report_only`: run nothing, write the outputs of the rounds finished so far (an interim
     look at a run that is still going, in the same directory); `retry_failed`: run again the rounds
-    Drake could not simulate before (failed_rounds; else they are not rerun)."""
+    Drake could not simulate before (failed_rounds; else they are not rerun); `procedural_seed`:
+    the procedural objects' seed without `meshes_dir` (recorded in config.json: a resume with
+    another seed is refused)."""
     only = tuple(sorted(only_meshes)) if only_meshes is not None else None
     plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
     out = pathlib.Path(out_dir)
@@ -125,7 +127,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         out.mkdir(parents=True, exist_ok=True)
         atomic_files.remove_stale_temporaries(out)
     config = {"seed": seed, "meshes": str(pathlib.Path(meshes_dir).resolve()) if meshes_dir else None,
-              "procedural_seed": None if meshes_dir else PROCEDURAL_SEED, "objects_per_scene": OBJECTS_PER_SCENE,
+              "procedural_seed": None if meshes_dir else int(procedural_seed), "objects_per_scene": OBJECTS_PER_SCENE,
               "protocol": dataclasses.asdict(protocol)}
     for off_by_default in ("clear_hand", "close_on_contact_within_m"):
         if not getattr(protocol, off_by_default):  # older runs' config.json has no such key: they stay resumable
@@ -155,6 +157,10 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
             raise ValueError(f"{out} was run under execution settings {execution_name(previous['protocol'])}, not "
                              f"{execution_name(config['protocol'])}: rounds run under different settings are never "
                              f"pooled; pass --execution {execution_name(previous['protocol'])} or use another --out")
+        ran_seed, seed_now = previous.get("procedural_seed"), config["procedural_seed"]
+        if None not in (ran_seed, seed_now) and ran_seed != seed_now:
+            raise ValueError(f"{out} was run on the procedural objects of seed {ran_seed}, not {seed_now}: pass "
+                             f"--procedural-seed {ran_seed} or use another --out")
         if previous != config:
             raise ValueError(f"{out} holds a run with another configuration ({config_path}); "
                              "use another --out, or delete it to start over")
@@ -164,10 +170,11 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     if report_only:
         listed = out / "excluded_objects.json"  # absent only if the run was stopped within its first second
         excluded = json.loads(listed.read_text()) if listed.exists() else []
-        return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed)
+        return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed,
+                             config["procedural_seed"])
     atomic_files.save_json(config_path, {**config, "hands": hands, "machines": machines})
 
-    usable, excluded = object_pool(meshes_dir, only=only)
+    usable, excluded = object_pool(meshes_dir, only=only, procedural_seed=config["procedural_seed"])
     atomic_files.save_json(out / "excluded_objects.json", list(excluded))
     scenes, pending = {}, []
     for sid in ids:
@@ -228,7 +235,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
             note(f"benchmark: a worker process died ({e}); continuing with a new pool")
     for task, message in errors:
         note(f"benchmark: round {task.method} {task.mass_kg} kg {task.scene['scene_id']} failed: {message}")
-    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed)
+    return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed,
+                         config["procedural_seed"])
 
 
 def _guarded_round(task):
