@@ -293,6 +293,40 @@ def test_validness_ranking_for_a_binary_model():
         detection.DetectionOptions(precision="fp16")
 
 
+def test_a_preferred_score_orders_but_never_empties():
+    """prefer_score_n (a known payload's need, held_payload_score_n): ranked by validness,
+    the grasps scored at least that first, then the others; above every score it leaves the
+    validness ranking as it was, where min_score_n would leave nothing."""
+    torch.manual_seed(0)
+    net = networks.GraspNet().eval()
+    grid = table_grid().numpy()
+    options = detection.DetectionOptions(validness_threshold=0.0, max_grasps=1000, rank_by="validness")
+    plain = detection.detect_grasps(net, grid, VS, options=options)
+    prefer_n = float(np.median([g.score_n for g in plain]))
+    preferred = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(options, prefer_score_n=prefer_n))
+    strong = [g.score_n >= prefer_n for g in preferred]
+    assert any(strong) and not all(strong)
+    assert strong == sorted(strong, reverse=True)  # every preferred grasp before every other
+    for group in (True, False):
+        v = [g.validness for g, s in zip(preferred, strong) if s == group]
+        assert v == sorted(v, reverse=True)
+    assert all(g.rank_key == pytest.approx(g.validness + s) for g, s in zip(preferred, strong))
+    above_all = dataclasses.replace(options, prefer_score_n=1e6)
+    assert ([g.voxel_index for g in detection.detect_grasps(net, grid, VS, options=above_all)]
+            == [g.voxel_index for g in plain])
+    assert not detection.detect_grasps(net, grid, VS, options=dataclasses.replace(options, min_score_n=1e6))
+    assert detection.held_payload_score_n(1.5) == pytest.approx(
+        detection.EXECUTED_HOLD_OFFSET_N + detection.EXECUTED_HOLD_N_PER_WEIGHT_N * 1.5 * 9.81)
+    with pytest.raises(ValueError, match="give a mass >= 0 kg"):
+        detection.held_payload_score_n(-1.0)
+    with pytest.raises(ValueError, match="rank_by 'validness'"):
+        detection.DetectionOptions(prefer_score_n=30.0)  # ranked by score: nothing to order
+    with pytest.raises(ValueError, match="rank_by 'validness'"):
+        detection.DetectionOptions(prefer_score_n=30.0, rank_by="validness", has_score=False)
+    with pytest.raises(ValueError, match="give a score >= 0 N"):
+        detection.DetectionOptions(prefer_score_n=math.nan, rank_by="validness")
+
+
 def test_a_model_without_a_score_is_selected_and_ranked_by_validness_alone():
     """score_n None (a binary model): candidates and order come from validness only (min_score_n
     in N does not apply), every grasp carries score_n NaN and rank_key = its validness. A NaN

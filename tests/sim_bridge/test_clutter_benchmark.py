@@ -395,6 +395,32 @@ def test_the_method_told_the_mass_takes_the_surest_grasps_predicted_to_hold_it(t
         method.make(str(binary), p, payload_kg=1.0)
 
 
+def test_the_method_told_the_mass_by_calibration_prefers_what_held_it(tmp_path, monkeypatch):
+    """ours_told ranks by validness with the grasps scored >= held_payload_score_n(m) first
+    and the others after them: a mass no grasp is scored for leaves the validness ranking,
+    not an empty view as ours_mass's floor would."""
+    path = save_test_model(tmp_path / "gravgrasp.pt", validness_bias=0.0)
+    method = methods.METHODS["ours_told"]
+    assert method.told_payload and method.file_of == "ours"
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3
+    grid[10:30, 10:30, 12] = 0.5
+    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
+    view = (grid, 0.0075, np.zeros(3))
+    by_validness = methods.METHODS["ours_mass"].make(str(path), p, payload_kg=0.0).detect(view)  # no floor
+    monkeypatch.setattr(detection, "EXECUTED_HOLD_OFFSET_N", 0.0)  # the untrained net scores ~7 N
+    scores = sorted(g.score_n for g in by_validness)
+    mass_kg = scores[len(scores) // 2] / (detection.EXECUTED_HOLD_N_PER_WEIGHT_N * 9.81)  # half are scored for it
+    told = method.make(str(path), p, payload_kg=mass_kg).detect(view)
+    strong = [g.score_n >= detection.held_payload_score_n(mass_kg) for g in told]
+    assert any(strong) and strong == sorted(strong, reverse=True)
+    assert [g.rank_key for g in told] == pytest.approx(
+        sorted((g.validness + s for g, s in zip(told, strong)), reverse=True), abs=1e-6)
+    # (a weaker grasp next to a preferred one loses the non-maximum suppression to it)
+    heavy = method.make(str(path), p, payload_kg=1e4).detect(view)
+    assert [g.voxel_index for g in heavy] == [g.voxel_index for g in by_validness]
+
+
 def save_test_model(path, validness_bias=5.0, target="gravity-score"):
     """Random init, made to propose top-down grasps (closing along task y) at every
     near-surface voxel, so a round executes real attempts."""

@@ -85,3 +85,16 @@ def test_bad_inputs_get_one_sentence(tmp_path, model, capsys):
     assert "0 placed attempts" in capsys.readouterr().err
     assert esc.main(["--model", str(path), "--results", str(tmp_path / "b"), "--out", out, "--hold", "1"]) == 2
     assert "between 0 and 1" in capsys.readouterr().err
+
+
+def test_the_detectors_constants_are_the_committed_calibration():
+    """detection.held_payload_score_n (ours_told's preference) says what the committed study
+    measured: rerunning the study without updating the constants fails here."""
+    import pathlib
+
+    from gravgrasp_detector.perception import detection
+    result = json.loads((pathlib.Path(__file__).parents[2] / "sim_bridge/results/executed_score_calibration.json")
+                        .read_text())
+    assert result["interval"]["hold_p"] == 0.8
+    for m, needed in result["score_needed_n"]["0.8"].items():
+        assert detection.held_payload_score_n(float(m)) == pytest.approx(needed, abs=0.3)
