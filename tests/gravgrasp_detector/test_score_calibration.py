@@ -189,4 +189,6 @@ def test_a_pick_holds_the_weights_its_closest_label_holds(scenes, tmp_path, monk
     assert seen == [0.9] * (3 + len(score_calibration.HOLDS_KG))  # each ranking with the threshold asked for
     told = score_calibration.pick_options("told_1.5kg", True, 0.5)
     assert told.rank_by == "validness" and told.min_score_n == pytest.approx(1.5 * 9.81 * 1.5)
+    assert [score_calibration.told_mass_kg(score_calibration.told_ranking(m)) for m in (0.1, 4.0)] == [0.1, 4.0]
+    assert score_calibration.told_mass_kg("validness") is None
     assert score_calibration.label_score_at(training_scenes.load_scene(edited), Grasp(np.eye(4), 1.0, 1.0, (0, 0, 0))) is None

@@ -103,14 +103,19 @@ def told_ranking(mass_kg):
     return f"told_{mass_kg:g}kg"
 
 
+def told_mass_kg(ranking):
+    """The payload [kg] a "told_<m>kg" ranking was told; None for detect's own rankings."""
+    return float(ranking[len("told_"):-len("kg")]) if ranking.startswith("told_") else None
+
+
 def pick_options(ranking, has_score, validness_threshold):
     """detect's options for a top_picks ranking: detect's own (score, expected_score,
     validness), or told_<m>kg: by validness among the grasps scored >= 1.5 x m g (the
     benchmark's ours_mass, a cell's stack.object_mass_kg)."""
-    told = ranking.startswith("told_")
+    mass_kg = told_mass_kg(ranking)
     return DetectionOptions(max_grasps=max(TOP_K), has_score=has_score, validness_threshold=validness_threshold,
-                            rank_by="validness" if told else ranking,
-                            min_score_n=payload_min_score_n(float(ranking[5:-2])) if told else 0.0)
+                            rank_by=ranking if mass_kg is None else "validness",
+                            min_score_n=0.0 if mass_kg is None else payload_min_score_n(mass_kg))
 
 
 @torch.inference_mode()
@@ -259,9 +264,9 @@ def main(argv=None):
     print(f"validness near surfaces: {validness['voxels']} voxels, {validness['labelled_valid']} labelled valid; "
           f"at {validness['threshold']:g}: precision={validness['precision']:.4f} recall={validness['recall']:.3f} "
           f"auroc={validness['auroc']:.4f}")
-    told = {r: by_k[1] for r, by_k in picks.items() if r.startswith("told_")}
+    told = {told_mass_kg(r): by_k[1] for r, by_k in picks.items() if told_mass_kg(r) is not None}
     for r, by_k in picks.items():
-        if r in told:
+        if told_mass_kg(r) is not None:
             continue
         n = {k: max(c["label"] + c["negative"] + c["neither"], 1) for k, c in by_k.items()}
         print(f"{r} ranking: " + "; ".join(
@@ -270,7 +275,7 @@ def main(argv=None):
             f"{m} kg {held / n[1]:.2f}" for m, held in by_k[1]["holds_kg"].items()))
     if told:  # each its own weight: the top 1 of the detector told m, on a label holding m
         print("told the mass (by validness among grasps scored >= 1.5 x m g): top 1 on a label holding "
-              + ", ".join(f"{r[5:-2]} kg {c['holds_kg'][str(float(r[5:-2]))] / len(files):.2f}" for r, c in told.items())
+              + ", ".join(f"{m:g} kg {c['holds_kg'][str(m)] / len(files):.2f}" for m, c in told.items())
               + f" (of {len(files)} scenes)")
     print(f"score_mae_n={summary['all']['mae_n']:.2f}")
     return 0
