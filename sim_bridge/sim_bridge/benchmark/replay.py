@@ -91,15 +91,37 @@ class SurfaceSamples:
         return out
 
 
+def recorded_round(results_dir, method, mass_kg, scene_id) -> dict:
+    """A committed round's record; ValueError (one line) where the run has none."""
+    round_file = pathlib.Path(results_dir) / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json"
+    if not round_file.is_file():
+        raise ValueError(f"no round {round_file}: see {round_file.parents[2]} for the methods, weights and scenes run")
+    return json.loads(round_file.read_text())
+
+
+def rebuild_cell(results_dir, recorded, model_path) -> tuple:
+    """(cell, protocol) of a committed round as the benchmark built it: the run's scene and
+    protocol, the model file the round ran (checked by its sha256), one torch thread.
+    ValueError (one line) for another model file."""
+    results_dir = pathlib.Path(results_dir)
+    if file_sha256(model_path) != recorded["model_sha256"]:
+        raise ValueError(f"{model_path} is not the model this round ran ({recorded['method']} "
+                         f"{recorded['mass_kg']} kg {recorded['scene_id']}, sha256 {recorded['model_sha256'][:12]}…): "
+                         "pass --model with that file, e.g. from `git log -- models/` and `git show COMMIT:PATH`")
+    config = json.loads((results_dir / "config.json").read_text())
+    scene = json.loads((results_dir / "scenes" / f"{recorded['scene_id']}.json").read_text())
+    protocol = Protocol(**config["protocol"])
+    torch.set_num_threads(1)
+    cell, _ = make_cell(RoundTask(recorded["method"], str(model_path), recorded["model_sha256"],
+                                  float(recorded["mass_kg"]), scene, protocol))
+    return cell, protocol
+
+
 def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_attempts=None, dump_dir=None,
                  report=print) -> list:
     """Replay one committed round; `report` gets one dict per attempt. -> those dicts.
     ValueError (one line) when the round, its scene or its model file is not there."""
-    results_dir = pathlib.Path(results_dir)
-    round_file = results_dir / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json"
-    if not round_file.is_file():
-        raise ValueError(f"no round {round_file}: see {results_dir / 'rounds'} for the methods, weights and scenes run")
-    recorded = json.loads(round_file.read_text())
+    recorded = recorded_round(results_dir, method, mass_kg, scene_id)
     if model_path is None:
         if method not in METHODS:
             raise ValueError(f"method {method!r} has no registered file: pass --model")
@@ -107,15 +129,7 @@ def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_at
     model_path = pathlib.Path(model_path)
     if not model_path.is_file():
         raise ValueError(f"model file {model_path} not found")
-    if file_sha256(model_path) != recorded["model_sha256"]:
-        raise ValueError(f"{model_path} is not the model this round ran (sha256 {recorded['model_sha256'][:12]}…): "
-                         "pass --model with that file, e.g. from `git log -- models/` and `git show COMMIT:PATH`")
-    config = json.loads((results_dir / "config.json").read_text())
-    scene = json.loads((results_dir / "scenes" / f"{scene_id}.json").read_text())
-    task = RoundTask(method, str(model_path), recorded["model_sha256"], float(mass_kg), scene,
-                     Protocol(**config["protocol"]))
-    torch.set_num_threads(1)
-    cell, _ = make_cell(task)
+    cell, protocol = rebuild_cell(results_dir, recorded, model_path)
     if dump_dir is not None:
         pathlib.Path(dump_dir).mkdir(parents=True, exist_ok=True)
     done, execute, samples = [], cell.execute, SurfaceSamples(cell.world)
@@ -143,7 +157,7 @@ def replay_round(results_dir, method, mass_kg, scene_id, model_path=None, max_at
     cell.settle()
     cell.remove_fallen()
     try:
-        clear_table(cell, len(cell.objects_on_table()), task.protocol.attempts_per_object)
+        clear_table(cell, len(cell.objects_on_table()), protocol.attempts_per_object)
     except _Enough:
         pass
     return done

@@ -38,20 +38,17 @@ import sys
 import time
 
 import numpy as np
-import torch
 
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.detection import FINGER_BASE_Z_M
-from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..benchmark import pick_diagnosis
 from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.clearing import clear_table
 from ..benchmark.methods import METHODS
-from ..benchmark.protocol import Protocol, weight_key
-from ..benchmark.replay import SurfaceSamples, closing_region_contents
+from ..benchmark.protocol import weight_key
+from ..benchmark.replay import SurfaceSamples, closing_region_contents, rebuild_cell, recorded_round
 from ..benchmark.report import attempt_scores, outcome_class
-from ..benchmark.rounds import RoundTask, make_cell
 from ..physics.scenes import TABLE_HEIGHT_M
 
 FAILURES = ("no_object", "timeout", "jammed_on_approach", "lift_blocked", "all_refused")
@@ -135,21 +132,13 @@ def diagnose_round(results_dir, method, mass_kg, scene_id, model_paths: dict) ->
     COMPARE methods. -> the round's diagnosis record."""
     t0 = time.process_time()
     results_dir = pathlib.Path(results_dir)
-    recorded = json.loads((results_dir / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json").read_text())
+    recorded = recorded_round(results_dir, method, mass_kg, scene_id)
     failures = find_failures(recorded)
     out = {"results": results_dir.name, "method": method, "mass_kg": mass_kg, "scene_id": scene_id,
            "model_sha256": recorded["model_sha256"], "end": recorded["end"], "failures": [], "successes": []}
     if not failures:
         return {**out, "replayed": 0, "diverged_at": None, "cpu_s": 0.0}
-    path = model_paths[method]
-    if file_sha256(path) != recorded["model_sha256"]:
-        raise ValueError(f"{path} is not the model round {method}/{mass_kg}/{scene_id} ran "
-                         f"(sha256 {recorded['model_sha256'][:12]}…): pass --model {method}=PATH")
-    config = json.loads((results_dir / "config.json").read_text())
-    scene = json.loads((results_dir / "scenes" / f"{scene_id}.json").read_text())
-    protocol = Protocol(**config["protocol"])
-    torch.set_num_threads(1)
-    cell, _ = make_cell(RoundTask(method, str(path), recorded["model_sha256"], float(mass_kg), scene, protocol))
+    cell, protocol = rebuild_cell(results_dir, recorded, model_paths[method])
     # the comparison methods' detectors, as the benchmark makes them (a volume each, unused)
     compare = {name: METHODS[name].make(model_paths[name], protocol).detect
                for name in COMPARE.get(method, ()) if name in model_paths}

@@ -27,7 +27,6 @@ Prints the tables and, last, `score_for_hold_<p>_at_<m>kg_n=`.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import math
 import pathlib
@@ -36,6 +35,7 @@ import sys
 import numpy as np
 
 from gravgrasp_detector import atomic_files
+from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..benchmark.report import attempt_scores, outcome_class, wilson_interval
 
@@ -198,7 +198,7 @@ def main(argv=None) -> int:
     if not 0 < args.hold < 1:
         print(f"executed_score_calibration: --hold {args.hold}: give a probability between 0 and 1", file=sys.stderr)
         return 2
-    sha = hashlib.sha256(model.read_bytes()).hexdigest()
+    sha = file_sha256(model)
     try:
         rows = load_attempts(args.results, sha)
         result = study(rows)

@@ -32,19 +32,16 @@ import sys
 import time
 
 import numpy as np
-import torch
 
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.detection import FREE_SPACE_MASKS
-from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..benchmark import pick_diagnosis
 from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.methods import METHODS, gravgrasp
-from ..benchmark.protocol import Protocol, weight_key
-from ..benchmark.replay import SurfaceSamples
+from ..benchmark.protocol import weight_key
+from ..benchmark.replay import SurfaceSamples, rebuild_cell, recorded_round
 from ..benchmark.report import outcome_class
-from ..benchmark.rounds import RoundTask, make_cell
 from .before_lift_diagnosis import FAILURES, diagnose_view, round_files
 
 MASKS = tuple(m for m in FREE_SPACE_MASKS if m != "off")
@@ -54,20 +51,13 @@ def first_view(results_dir, method, mass_kg, scene_id, model_path) -> dict:
     """The record of one round's first view (module doc)."""
     t0 = time.process_time()
     results_dir = pathlib.Path(results_dir)
-    recorded = json.loads((results_dir / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json").read_text())
+    recorded = recorded_round(results_dir, method, mass_kg, scene_id)
     out = {"results": results_dir.name, "method": method, "mass_kg": mass_kg, "scene_id": scene_id}
     if not recorded["attempts"]:
         return {**out, "outcome": None, "cpu_s": 0.0}
-    if file_sha256(model_path) != recorded["model_sha256"]:
-        raise ValueError(f"{model_path} is not the model round {method}/{mass_kg}/{scene_id} ran "
-                         f"(sha256 {recorded['model_sha256'][:12]}…): pass --model PATH")
     first = recorded["attempts"][0]
     out.update(outcome=outcome_class(first), validness=first["validness"], rank=first["rank"])
-    config = json.loads((results_dir / "config.json").read_text())
-    scene = json.loads((results_dir / "scenes" / f"{scene_id}.json").read_text())
-    protocol = Protocol(**config["protocol"])
-    torch.set_num_threads(1)
-    cell, _ = make_cell(RoundTask(method, str(model_path), recorded["model_sha256"], float(mass_kg), scene, protocol))
+    cell, protocol = rebuild_cell(results_dir, recorded, model_path)
     masked = {mask: gravgrasp.make_detector(model_path, protocol, free_space_mask=mask).detect for mask in MASKS}
     cell.settle()
     cell.remove_fallen()
