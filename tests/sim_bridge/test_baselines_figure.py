@@ -66,7 +66,8 @@ def tables(tmp_path) -> tuple:
     """(the SR/CR table's lines, the paired table's lines, all lines)."""
     lines = (tmp_path / "out" / "baselines_table.md").read_text().splitlines()
     split = next(i for i, line in enumerate(lines) if line.startswith("Ours − method"))
-    return lines[:split], lines[split:], lines
+    chain = next(i for i, line in enumerate(lines) if line.startswith("Where the gain comes from"))
+    return lines[:split], lines[split:chain], lines
 
 
 def test_partial_results_are_shown_with_their_round_counts(tree, capsys):
@@ -121,3 +122,23 @@ def test_a_missing_run_is_one_sentence(tree, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "make benchmark-baselines" in err and "not_yet" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_chain_splits_the_gain_step_by_step_per_scene(tree):
+    """Each step is later − earlier over the scenes both ran: Binary → Ours is the paired
+    table's Ours − Binary; a step with no scene in common is a gap."""
+    tmp_path, args = tree
+    bf.main(args)
+    _, _, lines = tables(tmp_path)
+    start = next(i for i, line in enumerate(lines) if line.startswith("Where the gain comes from"))
+    chain = lines[start:]
+    (labels,) = rows(chain, "held-out meshes | Binary (2F-85) → Ours (2F-85)")
+    assert labels[2] == "the labels"
+    assert labels[3].startswith("-4.2 (") and labels[3].endswith("; p = 1; 2)")  # 0.1 kg, as Ours − Binary
+    (whole,) = rows(chain, "held-out meshes | VGN (Panda) → Ours (2F-85)")
+    assert whole[3].startswith("+33.3 (") and whole[3].endswith("; 1)")  # pile only: 2/3 − 1/3
+    (hand,) = rows(chain, "held-out meshes | VGN (Panda) → VGN's grasps (2F-85)")
+    assert hand[3:] == ["—", "—"]  # VGN at 0.1 kg, its grasps on the 2F-85 at 1.5 kg only
+    assert [r[1] for r in rows(chain, "procedural objects |")] == [
+        "VGN (Panda) → VGN's grasps (2F-85)", "VGN's grasps (2F-85) → Binary (2F-85)",
+        "Binary (2F-85) → Ours (2F-85)", "VGN (Panda) → Ours (2F-85)"]

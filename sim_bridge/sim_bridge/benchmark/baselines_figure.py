@@ -41,6 +41,10 @@ FIGURE_METHODS = (("ours", "Ours"), ("binary", "Binary"), ("ours_precision", "Ou
 # VGN's grasps on the 2F-85 separate the detector from the hand at the ends of the range only
 PLANNED_WEIGHTS_KG = {"vgn_2f85": (0.1, 1.5)}
 HAND_NAMES = {"2f85": "2F-85", "panda": "Panda"}
+# Where Ours' gain over VGN comes from (doc/baselines.md, "What this answers"): each step
+# changes one thing, at the weights VGN's grasps on the 2F-85 ran
+CHAIN_STEPS = (("vgn", "vgn_2f85", "the hand"), ("vgn_2f85", "binary", "the detector and its data"),
+               ("binary", "ours", "the labels"), ("vgn", "ours", "all of it"))
 # GIGA (arXiv 2104.01542) Table I, VGN with one side view: the sanity anchor at 0.1 kg
 GIGA_VGN_SR = {"packed": 0.745, "pile": 0.607}
 
@@ -100,13 +104,30 @@ def _cell(row, key: str, scenes: int) -> str:
     return f"{_pct(row[key])} ({row['successes']}/{n}; {row['rounds']}/{scenes})"
 
 
-def _paired_cell(c) -> str:
-    """Ours − method per scene (compare_paired gives method − Ours: negated), its
-    bootstrap interval and sign-flip p."""
+def _paired_cell(c, sign: int = -1) -> str:
+    """A compare_paired result (method − reference) times `sign`: by default reference −
+    method (Ours − method), with its bootstrap interval and sign-flip p."""
     if c is None or math.isnan(c["diff"]):
         return "—"
-    lo, hi = -c["ci95"][1], -c["ci95"][0]
-    return f"{-100 * c['diff']:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f}; p = {c['p_value']:.2g}; {c['scenes']})"
+    lo, hi = sorted(sign * x for x in c["ci95"])
+    return f"{sign * 100 * c['diff']:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f}; p = {c['p_value']:.2g}; {c['scenes']})"
+
+
+def chain_lines(runs: list) -> list:
+    """The gain split along CHAIN_STEPS: per scene, paired, each step (later − earlier) over
+    the scenes both of its methods ran."""
+    weights = PLANNED_WEIGHTS_KG["vgn_2f85"]
+    lines = ["Where the gain comes from: each step changes one thing; later − earlier, SR per scene, paired, "
+             "over the scenes both ran (the steps add up to the whole only where every method ran every scene).",
+             "", "| objects | step | what changes | " + " | ".join(f"{w:g} kg" for w in weights) + " |",
+             "| --- | --- | --- | " + " | ".join("---" for _ in weights) + " |"]
+    for name, run in runs:
+        for earlier, later, what in CHAIN_STEPS:
+            paired = {c["mass_kg"]: c for c in compare_paired(run["rounds"], reference=earlier)
+                      if c["method"] == later}
+            cells = [_paired_cell(paired.get(w), sign=1) for w in weights]
+            lines.append(f"| {name} | {label(earlier)} → {label(later)} | {what} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def anchor_lines(label_: str, run: dict) -> list:
@@ -141,6 +162,7 @@ def table_lines(runs: list) -> list:
             lines.append(f"| {name} | {label(method)} | "
                          + " | ".join(_paired_cell(paired.get((method, w))) if w in planned(method) else "not run"
                                       for w in WEIGHTS_KG) + " |")
+    lines += [""] + chain_lines(runs)
     lines += ["", "VGN's SR at 0.1 kg against the published anchor (GIGA Table I, one side view):", ""]
     for name, run in runs:
         lines += anchor_lines(name, run)
