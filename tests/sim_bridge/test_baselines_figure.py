@@ -142,3 +142,11 @@ def test_the_chain_splits_the_gain_step_by_step_per_scene(tree):
     assert [r[1] for r in rows(chain, "procedural objects |")] == [
         "VGN (Panda) → VGN's grasps (2F-85)", "VGN's grasps (2F-85) → Binary (2F-85)",
         "Binary (2F-85) → Ours (2F-85)", "VGN (Panda) → Ours (2F-85)"]
+
+
+def test_the_default_runs_are_the_working_directorys(tmp_path, monkeypatch, capsys):
+    """Relative to where it runs (the project root), not to the code: the chain runs the code
+    of a pinned worktree (ros_ws/run_pinned.sh) on the checkout's results."""
+    monkeypatch.chdir(tmp_path)
+    assert bf.main([]) == 2
+    assert capsys.readouterr().err.startswith("baselines_figure: sim_bridge/results/baselines_heldout holds no")

@@ -30,7 +30,6 @@ from .paired import compare_paired
 from .protocol import weight_key
 from .report import summarize
 
-REPO_ROOT = pathlib.Path(__file__).resolve().parents[3]
 RUNS = (("held-out meshes", "sim_bridge/results/baselines_heldout"),
         ("procedural objects", "sim_bridge/results/baselines_procedural"))
 WEIGHTS_KG = (0.1, 0.5, 1.5)  # the paper's range
@@ -224,18 +223,20 @@ def plot(runs: list, path) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--heldout", default=str(REPO_ROOT / RUNS[0][1]), help="the held-out meshes' run")
-    p.add_argument("--procedural", default=str(REPO_ROOT / RUNS[1][1]), help="the procedural objects' run")
-    p.add_argument("--out-dir", default=str(REPO_ROOT / "sim_bridge/results"),
+    # relative to the working directory, the project root, as the benchmark's own paths: so a
+    # pinned worktree's code (ros_ws/run_pinned.sh) reads and writes the checkout's results
+    p.add_argument("--heldout", default=RUNS[0][1], help="the held-out meshes' run")
+    p.add_argument("--procedural", default=RUNS[1][1], help="the procedural objects' run")
+    p.add_argument("--out-dir", default="sim_bridge/results",
                    help="where baselines_fig5.png and baselines_table.md go")
-    p.add_argument("--models-dir", default=str(REPO_ROOT / "models"))
+    p.add_argument("--models-dir", default="models")
     p.add_argument("--baselines", default=None, metavar="DIR", help="the baselines' files (their sha256)")
     args = p.parse_args(argv)
     runs = []
     for (name, _), run_dir in zip(RUNS, (args.heldout, args.procedural)):
         if not (pathlib.Path(run_dir) / "config.json").is_file():
-            print(f"baselines_figure: {run_dir} holds no benchmark run (no config.json): run "
-                  "`make benchmark-baselines` first, or pass --heldout/--procedural", file=sys.stderr)
+            print(f"baselines_figure: {run_dir} holds no benchmark run (no config.json): run it from the project "
+                  "root after `make benchmark-baselines`, or pass --heldout/--procedural", file=sys.stderr)
             return 2
         runs.append((name, load_run(run_dir, args.models_dir, args.baselines)))
     out = pathlib.Path(args.out_dir)
