@@ -123,16 +123,17 @@ benchmark-procedural: setup
 # 256 rounds, ~69k CPU-s estimated, ~10 h on 2 free cores. Pinned to PIN in the background
 # (log: out/benchmark_baselines.log); resumable: rerun with PIN=<the commit it started on>.
 PIN ?= HEAD
+# $(call pinned_chain,LOG,SCRIPT): sim_bridge/scripts/SCRIPT of commit PIN, in the background
+pinned_chain = c=$$(git rev-parse --verify --quiet "$(PIN)^{commit}") || { echo "PIN=$(PIN) names no commit" >&2; exit 2; }; \
+	  ros_ws/run_pinned.sh $$c $(1) -- out/pinned/$${c:0:12}/sim_bridge/scripts/$(2)
 .PHONY: benchmark-baselines baselines-figure
 benchmark-baselines: setup
-	@c=$$(git rev-parse --verify --quiet "$(PIN)^{commit}") || { echo "PIN=$(PIN) names no commit" >&2; exit 2; }; \
-	  ros_ws/run_pinned.sh $$c out/benchmark_baselines.log -- out/pinned/$${c:0:12}/sim_bridge/scripts/baselines_chain.sh
+	@$(call pinned_chain,out/benchmark_baselines.log,baselines_chain.sh)
 baselines-figure: setup
 	@$(ROS) python -m sim_bridge.benchmark.baselines_figure
 .PHONY: lever-clearance
 lever-clearance: setup
-	@c=$$(git rev-parse --verify --quiet "$(PIN)^{commit}") || { echo "PIN=$(PIN) names no commit" >&2; exit 2; }; \
-	  ros_ws/run_pinned.sh $$c out/clearance_lever.log -- out/pinned/$${c:0:12}/sim_bridge/scripts/clearance_lever_chain.sh
+	@$(call pinned_chain,out/clearance_lever.log,clearance_lever_chain.sh)
 
 # Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
 # cheaper label settings (make label-settings-study), the held-out meshes left out.

@@ -121,10 +121,11 @@ def chain_lines(runs: list) -> list:
              "", "| objects | step | what changes | " + " | ".join(f"{w:g} kg" for w in weights) + " |",
              "| --- | --- | --- | " + " | ".join("---" for _ in weights) + " |"]
     for name, run in runs:
+        paired = {(c["reference"], c["method"], c["mass_kg"]): c  # once per reference: the bootstrap is not free
+                  for reference in {earlier for earlier, _, _ in CHAIN_STEPS}
+                  for c in compare_paired(run["rounds"], reference=reference)}
         for earlier, later, what in CHAIN_STEPS:
-            paired = {c["mass_kg"]: c for c in compare_paired(run["rounds"], reference=earlier)
-                      if c["method"] == later}
-            cells = [_paired_cell(paired.get(w), sign=1) for w in weights]
+            cells = [_paired_cell(paired.get((earlier, later, w)), sign=1) for w in weights]
             lines.append(f"| {name} | {label(earlier)} → {label(later)} | {what} | " + " | ".join(cells) + " |")
     return lines
 

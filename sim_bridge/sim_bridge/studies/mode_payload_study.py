@@ -28,21 +28,21 @@ import sys
 
 import numpy as np
 from gravgrasp_detector import atomic_files
+from gravgrasp_detector.training.scenes import G_MPS2
 
 from ..datagen.object_grasps import MODE_NAMES, load_table
 from ..physics import hand_collision
 from ..physics.gravity_projection import gravity_rejection_score
 
-G_MPS2 = 9.81
 WEIGHTS_KG = (0.1, 0.5, 1.0, 1.5, 2.5, 4.0, 6.0, 8.0)
 APPROACH_CONE_DEG = 80.0  # the benchmark's executable approaches (datagen's execution check)
 APPROACH_M = 0.05         # the executor's pre-grasp distance
 POWER, PRECISION = MODE_NAMES.index("power"), MODE_NAMES.index("precision")
 
 
-def pose_best_scores(table: dict) -> list:
-    """[(rest probability, best power f_g, best precision f_g, power f_g's, precision f_g's)]
-    for each resting pose of one grasp table; -inf where a mode has no executable held grasp."""
+def pose_scores(table: dict) -> list:
+    """[(rest probability, power f_g's, precision f_g's)] of the executable held grasps in each
+    resting pose of one grasp table."""
     held = np.flatnonzero(table["grasped"].astype(bool))
     X_object_tcp = table["X_object_tcp"][held].astype(np.float64)
     mode = table["mode"][held]
@@ -53,15 +53,19 @@ def pose_best_scores(table: dict) -> list:
         ok[ok] = ~hand_collision.collides(X[ok], None, table_z_m=0.0, approach_m=APPROACH_M)
         f_g = gravity_rejection_score(table["scores_n"][held][ok], X[ok, :3, :3]) if ok.any() else np.zeros(0)
         m = mode[ok]
-        power, precision = f_g[m == POWER], f_g[m == PRECISION]
-        out.append((float(p), power.max(initial=-np.inf), precision.max(initial=-np.inf), power, precision))
+        out.append((float(p), f_g[m == POWER], f_g[m == PRECISION]))
     return out
+
+
+def best(f_g) -> float:
+    """The strongest grasp's f_g; -inf without one."""
+    return float(np.max(f_g, initial=-np.inf))
 
 
 def study(tables: dict, weights_kg=WEIGHTS_KG) -> dict:
     """tables: {name: grasp table} -> per weight, the probability-weighted shares over
     objects (each object counts 1, split over its resting poses)."""
-    poses = {name: pose_best_scores(t) for name, t in tables.items()}
+    poses = {name: pose_scores(t) for name, t in tables.items()}
     rows = []
     for kg in weights_kg:
         need = kg * G_MPS2
@@ -69,9 +73,9 @@ def study(tables: dict, weights_kg=WEIGHTS_KG) -> dict:
         held_power = held_all = 0
         for per_pose in poses.values():
             total_p = sum(p for p, *_ in per_pose) or 1.0
-            for p, best_power, best_precision, power, precision in per_pose:
+            for p, power, precision in per_pose:
                 w = p / total_p
-                a, b = best_power >= need, best_precision >= need
+                a, b = best(power) >= need, best(precision) >= need
                 acc["power"] += w * a
                 acc["precision"] += w * b
                 acc["only_power"] += w * (a and not b)
@@ -83,19 +87,19 @@ def study(tables: dict, weights_kg=WEIGHTS_KG) -> dict:
         rows.append({"mass_kg": kg, **{k: v / n for k, v in acc.items()},
                      "power_share_of_holding_grasps": held_power / held_all if held_all else float("nan"),
                      "holding_grasps": held_all})
-    both = [(a, b) for per in poses.values() for _, a, b, *_ in per if np.isfinite(a) and np.isfinite(b)]
-    best = np.array(both).reshape(-1, 2)
-    all_power = np.concatenate([x for per in poses.values() for *_, x, _ in per] or [np.zeros(0)])
-    all_precision = np.concatenate([x for per in poses.values() for *_, x in per] or [np.zeros(0)])
+    pose_list = [pose for per in poses.values() for pose in per]
+    both = np.array([(best(a), best(b)) for _, a, b in pose_list if a.size and b.size]).reshape(-1, 2)
+    all_power = np.concatenate([a for _, a, _ in pose_list] or [np.zeros(0)])
+    all_precision = np.concatenate([b for _, _, b in pose_list] or [np.zeros(0)])
     return {"objects": len(poses), "weights": rows,
             "median_f_g_n": {"power": float(np.median(all_power)) if all_power.size else float("nan"),
                              "precision": float(np.median(all_precision)) if all_precision.size else float("nan")},
             "grasps": {"power": int(all_power.size), "precision": int(all_precision.size)},
             # object poses that have executable held grasps of both modes: how their best compare
-            "poses_with_both_modes": len(best),
-            "power_best_stronger": float((best[:, 0] > best[:, 1]).mean()) if len(best) else float("nan"),
-            "median_best_f_g_n": {"power": float(np.median(best[:, 0])) if len(best) else float("nan"),
-                                  "precision": float(np.median(best[:, 1])) if len(best) else float("nan")}}
+            "poses_with_both_modes": len(both),
+            "power_best_stronger": float((both[:, 0] > both[:, 1]).mean()) if len(both) else float("nan"),
+            "median_best_f_g_n": {"power": float(np.median(both[:, 0])) if len(both) else float("nan"),
+                                  "precision": float(np.median(both[:, 1])) if len(both) else float("nan")}}
 
 
 def report_lines(result: dict) -> list:
