@@ -184,6 +184,28 @@ def test_a_motion_stopped_by_contact_is_told_apart_by_where_and_round_ends_are_p
     assert "| ours | 1.5 | 1 | 1 |" in ends and "| binary | 1.5 | 0 | 1 |" in ends
 
 
+def test_losses_before_the_lift_are_counted_per_weight_and_over_the_weights_binary_ran():
+    contact = "stopped by contact after 0.004 of 0.150 m"
+    miss = {"outcome": "no_object", "success": False, "reason": "the grasp missed the object: empty"}
+    jam = {"outcome": "unreachable", "success": False, "stopped_by_contact": True,
+           "reason": f"arm could not reach the grasp pose: {contact}"}
+    blocked = {**jam, "reason": f"arm could not reach the lift pose: {contact}"}
+    dropped = {"outcome": "dropped", "success": False, "reason": "the object slipped out during the lift"}
+    rounds = [{"method": "ours", "mass_kg": 0.1, "end": "no_feasible_grasp", "attempts": [miss, jam, blocked]},
+              {"method": "ours", "mass_kg": 1.5, "end": "consecutive_failures", "attempts": [dropped, dropped]},
+              {"method": "ours", "mass_kg": 1.5, "end": "no_feasible_grasp", "attempts": [miss]},
+              {"method": "binary", "mass_kg": 0.1, "end": "table_clear", "attempts": [jam]},
+              {"method": "binary", "mass_kg": 1.5, "end": "table_clear", "attempts": [dropped]}]
+    losses = report.before_lift_losses(rounds)
+    assert losses[("ours", 0.1)] == {"closed_on_nothing": 1, "contact_stops": 2, "rounds_all_refused": 1, "total": 4}
+    assert losses[("ours", 1.5)]["total"] == 2 and losses[("binary", 1.5)]["total"] == 0  # a drop is after the lift
+    lines = report.before_lift_lines(rounds, {"ours": [0.1, 1.5], "binary": [0.1, 1.5]})
+    assert "| ours | 0.1 | 1 | 2 | 1 | 4 | 4.0 |" in lines
+    assert "| ours | 1.5 | 1 | 0 | 1 | 2 | ∞ |" in lines  # binary lost none there
+    assert "| ours | all (0.1, 1.5) | 2 | 2 | 2 | 6 | 6.0 |" in lines
+    assert "| binary | 0.1 | 0 | 1 | 0 | 1 | — |" in lines and not any("| binary | all" in line for line in lines)
+
+
 def test_guarded_closes_are_tabulated_by_how_they_ended():
     short = "; closed 5.0 mm short of the grasp pose, backed off where the arm's contact stop halted the approach"
     rounds = [{"method": "ours", "mass_kg": 1.5, "attempts": [

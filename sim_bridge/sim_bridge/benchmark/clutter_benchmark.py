@@ -32,6 +32,9 @@ Protocol (one *round* = one method, one object weight, one scene):
   paired (which decides: a sign-flip permutation test over the scenes' SR differences,
   benchmark/paired.py, printed `p_paired_<method>_vs_binary_<kg>=`) and pooled (a
   two-proportion z test over attempts, `p_<method>_vs_binary_<kg>=`); results.md.
+- Attempts lost before the lift (closed on nothing, contact stops, rounds that ended with
+  every grasp refused), per method and weight and against Binary's: results.md,
+  `before_lift_<method>_<kg>=`.
 
 Methods are detectors with the hand that executes them (benchmark.methods.METHODS): the
 project's model files on the 2F-85 and `vgn`, VGN's published weights on the Panda hand
@@ -220,6 +223,8 @@ def main(argv=None) -> int:
               "; some rounds failed: rerun to retry them") if missing > gave_up else ""), flush=True)
     for r in rows:
         print(f"CR_{r['method']}_{weight_key(r['mass_kg'])}={r['CR']:.2f}")
+    for r in rows:
+        print(f"before_lift_{r['method']}_{weight_key(r['mass_kg'])}={r['before_lift']['total']}")
     for c in json.loads((pathlib.Path(out) / "comparisons.json").read_text()):
         print(f"p_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
         if c.get("paired"):

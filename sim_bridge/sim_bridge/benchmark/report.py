@@ -120,7 +120,9 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
         "rounds": [{k: r[k] for k in ("method", "mass_kg", "scene_id", "objects", "n_objects", "end",
                                       "successes", "fell_off", "left_before_start", "sim_time_s")} | {"attempts": len(r["attempts"])}
                    for r in rounds]})
-    rows = summarize(rounds, plan)
+    losses = before_lift_losses(rounds)
+    rows = [{**r, "before_lift": losses.get((r["method"], r["mass_kg"]), dict.fromkeys((*BEFORE_LIFT, "total"), 0))}
+            for r in summarize(rounds, plan)]
     atomic_files.save_json(out / "results.json", rows)
     comparisons = with_paired(compare_to(rows), compare_paired(rounds))
     atomic_files.save_json(out / "comparisons.json", comparisons)
@@ -146,7 +148,8 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     lines += ["", *mode_lines(rounds, plan)]
     if protocol.close_on_contact_within_m > 0:
         lines += ["", *guarded_lines(rounds, plan, protocol.close_on_contact_within_m)]
-    lines += ["", *end_lines(rounds, plan), ""]
+    lines += ["", *end_lines(rounds, plan)]
+    lines += ["", *before_lift_lines(rounds, plan), ""]
     gave_up = [r for r in (failed or {}).values() if r["method"] in plan and r["model_sha256"] == shas[r["method"]]
                and r["mass_kg"] in plan[r["method"]] and r["scene_id"] in ids]
     if gave_up:
@@ -251,6 +254,54 @@ def end_lines(rounds, plan) -> list:
     counts = _tally(rounds, lambda r: [r["end"]])
     ends = sorted({e for row in counts.values() for e in row})
     return ["How the rounds ended:", "", *_count_table(counts, ends, plan)]
+
+
+BEFORE_LIFT = ("closed_on_nothing", "contact_stops", "rounds_all_refused")
+
+
+def before_lift_losses(rounds) -> dict:
+    """{(method, kg): {closed_on_nothing, contact_stops, rounds_all_refused, total}}: the
+    attempts lost before the lift (issue 42's count): closes on nothing (`no_object`), the
+    arm's contact stop on the approach or at the lift (`jammed_on_approach`,
+    `lift_blocked`), and rounds that ended with every detected grasp refused by the
+    executor (`no_feasible_grasp`)."""
+    def losses(r):
+        classes = [outcome_class(a) for a in r["attempts"]]
+        return (["closed_on_nothing"] * classes.count("no_object")
+                + ["contact_stops"] * (classes.count("jammed_on_approach") + classes.count("lift_blocked"))
+                + ["rounds_all_refused"] * (r["end"] == "no_feasible_grasp"))
+    counts = _tally(rounds, losses)
+    for r in rounds:  # a method and weight with no loss still has its row
+        counts.setdefault((r["method"], float(r["mass_kg"])), {})
+    return {key: {**{c: row.get(c, 0) for c in BEFORE_LIFT}, "total": sum(row.values())}
+            for key, row in counts.items()}
+
+
+def before_lift_lines(rounds, plan, reference: str = "binary") -> list:
+    """Markdown table: before_lift_losses per method and weight, and over each method's
+    weights that `reference` ran too, with the ratio to the reference's."""
+    losses = before_lift_losses(rounds)
+    lines = ["Attempts lost before the lift: closed on nothing, stopped by the arm's contact limit on the approach "
+             f"or at the lift, rounds ended with every detected grasp refused (× {reference}: the ratio to "
+             f"{reference}'s at the same weights):", "",
+             "| method | weight [kg] | closed on nothing | contact stops | rounds all refused | total | "
+             f"× {reference} |", "| --- | --- | --- | --- | --- | --- | --- |"]
+
+    def ratio(own, ref):
+        return "—" if ref is None else (f"{own / ref['total']:.1f}" if ref["total"] else "∞" if own else "—")
+    for method, weights_kg in plan.items():
+        rows = [(w, losses[(method, float(w))]) for w in weights_kg if (method, float(w)) in losses]
+        for w, row in rows:
+            ref = losses.get((reference, float(w)))
+            lines.append(f"| {method} | {w:g} | " + " | ".join(str(row[c]) for c in (*BEFORE_LIFT, "total"))
+                         + f" | {ratio(row['total'], None if method == reference else ref)} |")
+        shared = [(w, row) for w, row in rows if (reference, float(w)) in losses]
+        if method != reference and len(shared) > 1:
+            own = {c: sum(row[c] for _, row in shared) for c in (*BEFORE_LIFT, "total")}
+            ref = {"total": sum(losses[(reference, float(w))]["total"] for w, _ in shared)}
+            lines.append(f"| {method} | all ({', '.join(f'{w:g}' for w, _ in shared)}) | "
+                         + " | ".join(str(own[c]) for c in (*BEFORE_LIFT, "total")) + f" | {ratio(own['total'], ref)} |")
+    return lines
 
 
 def machine_line(rounds) -> str:
