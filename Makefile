@@ -26,6 +26,7 @@ help:
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"
 	@echo "make benchmark-baselines - the paper's Fig. 5 baselines: VGN, VN-EdgeGraspNet (Panda) and VGN on the 2F-85 beside the committed rounds (256 rounds, ~10 h; pinned, background, resumable)"
 	@echo "make lever-clearance - issue 42's training lever: Ours retrained with the executor's clearance at label time, 16-scene lever runs (~3.5 h; pinned, background, resumable)"
+	@echo "make lever-guarded - issue 42's execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
 	@echo "make baselines-figure - SR/CR vs weight of every method, held-out and procedural side by side, and the table, from the rounds so far"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
@@ -131,9 +132,11 @@ benchmark-baselines: setup
 	@$(call pinned_chain,out/benchmark_baselines.log,baselines_chain.sh)
 baselines-figure: setup
 	@$(ROS) python -m sim_bridge.benchmark.baselines_figure
-.PHONY: lever-clearance
+.PHONY: lever-clearance lever-guarded
 lever-clearance: setup
 	@$(call pinned_chain,out/clearance_lever.log,clearance_lever_chain.sh)
+lever-guarded: setup
+	@$(call pinned_chain,out/guarded_lever.log,guarded_lever_chain.sh)
 
 # Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
 # cheaper label settings (make label-settings-study), the held-out meshes left out.
