@@ -1,0 +1,47 @@
+"""sim_bridge/doc/levers.md's table is what `python -m sim_bridge.benchmark.lever_table`
+prints from the committed runs; a lever's cells come from its run's paired comparison and
+its attempts lost before the lift."""
+
+import json
+import re
+from pathlib import Path
+
+from sim_bridge.benchmark import lever_table
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_doc_holds_what_the_command_prints():
+    text = (ROOT / "sim_bridge/doc/levers.md").read_text()
+    m = re.search(r"<!-- lever-table: [^>]*-->\n(.*?)\n<!-- /lever-table -->", text, re.S)
+    assert m, "levers.md has no <!-- lever-table --> block"
+    assert m.group(1).split("\n") == lever_table.table_lines(ROOT), \
+        "levers.md's table differs: paste `python -m sim_bridge.benchmark.lever_table` into it"
+
+
+def write_run(run, diffs, attempts):
+    """A run as `benchmark --report` leaves it: comparisons.json (paired per scene) and
+    attempts.json. diffs: {(method, kg): (diff, p)}; attempts: [(method, kg, outcome)]."""
+    run.mkdir(parents=True)
+    run.joinpath("comparisons.json").write_text(json.dumps([
+        {"method": m, "mass_kg": kg, "diff": d, "p_value": p, "paired": {"scenes": 16, "diff": d, "p_value": p}}
+        for (m, kg), (d, p) in diffs.items()]))
+    rounds = [{"method": m, "mass_kg": kg, "scene_id": "packed_000", "end": "table_clear", "successes": 0,
+               "attempts": 1} for m, kg in dict.fromkeys((m, kg) for m, kg, _ in attempts)]
+    run.joinpath("attempts.json").write_text(json.dumps({"rounds": rounds, "attempts": [
+        {"method": m, "mass_kg": kg, "scene_id": "packed_000", "outcome": o, "reason": ""} for m, kg, o in attempts]}))
+
+
+def test_a_lever_meets_the_targets_its_paired_figures_and_losses_meet(tmp_path):
+    run = tmp_path / "run"
+    write_run(run, {("ours_x", 0.1): (-0.02, 0.8), ("ours_x", 1.5): (0.16, 0.04)},
+              [("ours_x", 0.1, "no_object"), ("ours_x", 1.5, "jammed_on_approach"), ("ours_x", 1.5, "success"),
+               ("binary", 0.1, "no_object"), ("binary", 1.5, "success")])
+    m = lever_table.measure(run, "ours_x")
+    assert m["diff"][1.5] == (0.16, 0.04, 16) and m["losses"] == (2, 1)
+    assert lever_table.targets_met(m) == "0.1 kg, 1.5 kg"  # 2 lost against 1: over 1.5 x
+    m["diff"][1.5] = (0.16, 0.06, 16)
+    m["losses"] = (3, 2)
+    assert lever_table.targets_met(m) == "0.1 kg, before the lift"  # p 0.06 misses the 1.5 kg target
+    assert lever_table.measure(tmp_path / "absent", "ours_x") is None
+    assert lever_table.measure(run, "ours_y") is None  # a method its run did not compare
