@@ -45,3 +45,11 @@ def test_a_lever_meets_the_targets_its_paired_figures_and_losses_meet(tmp_path):
     assert lever_table.targets_met(m) == "0.1 kg, before the lift"  # p 0.06 misses the 1.5 kg target
     assert lever_table.measure(tmp_path / "absent", "ours_x") is None
     assert lever_table.measure(run, "ours_y") is None  # a method its run did not compare
+
+
+def test_binarys_drops_after_the_lift_bound_what_holding_better_can_gain(tmp_path):
+    run = tmp_path / "run"
+    write_run(run, {}, [("binary", 1.5, "dropped_in_shake"), ("binary", 1.5, "no_object"),
+                        ("binary", 1.5, "success"), ("binary", 1.5, "dropped"), ("binary", 0.1, "dropped")])
+    assert lever_table.binary_drops(run) == (2, 4)  # a close on nothing is placement, not holding
+    assert lever_table.binary_drops(tmp_path / "absent") is None
