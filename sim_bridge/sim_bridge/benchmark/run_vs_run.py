@@ -7,14 +7,14 @@ attempts.json (what its `--report` counted: the current model files' rounds only
 
 Per method and weight both ran: SR in each, the mean per-scene SR difference (LEVER −
 BASE) with its paired bootstrap interval and sign-flip p (benchmark/paired.py), and the
-attempts lost before the lift in each (report.before_lift_losses). Refuses runs whose
+attempts lost before the lift in each (report.before_lift_losses), all over the scenes both
+runs have a round of. Refuses runs whose
 shared scenes differ. Prints `p_paired_<method>_<kg>=` and `diff_<method>_<kg>=` lines."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import pathlib
 import sys
 
@@ -53,23 +53,24 @@ def check_same_scenes(base_dir, lever_dir) -> int:
 
 def compare_runs(base: list, lever: list, methods) -> list:
     """[{method, mass_kg, scenes, SR_base, SR_lever, diff, ci95, p_value, before_lift_base,
-    before_lift_lever}] for each method and weight both runs have."""
+    before_lift_lever}] for each method and weight both runs have; every figure over the
+    scenes both runs have a round of (with attempts) only."""
     out = []
-    losses = {"base": before_lift_losses(base), "lever": before_lift_losses(lever)}
     for method in methods:
-        tagged = ([{**r, "method": "lever"} for r in lever if r["method"] == method]
-                  + [{**r, "method": "base"} for r in base if r["method"] == method])
-        for c in compare_paired(tagged, reference="base"):
-            kg = c["mass_kg"]
-            sr = {}
-            for run in ("base", "lever"):
-                rs = [r for r in tagged if r["method"] == run and r["mass_kg"] == kg]
-                attempts = sum(len(r["attempts"]) for r in rs)
-                sr[run] = sum(r["successes"] for r in rs) / attempts if attempts else math.nan
-            out.append({"method": method, "mass_kg": kg, "scenes": c["scenes"], "SR_base": sr["base"],
-                        "SR_lever": sr["lever"], "diff": c["diff"], "ci95": c["ci95"], "p_value": c["p_value"],
-                        **{f"before_lift_{run}": losses[run].get((method, kg), {}).get("total", 0)
-                           for run in ("base", "lever")}})
+        for kg in sorted({r["mass_kg"] for r in lever if r["method"] == method}):
+            runs = {name: {r["scene_id"]: r for r in rounds if r["method"] == method and r["mass_kg"] == kg
+                           and r["attempts"]} for name, rounds in (("base", base), ("lever", lever))}
+            shared = sorted(runs["base"].keys() & runs["lever"].keys())
+            if not shared:
+                continue
+            paired = {name: [{**rs[s], "method": name} for s in shared] for name, rs in runs.items()}
+            c, = compare_paired(paired["base"] + paired["lever"], reference="base")
+            row = {"method": method, "mass_kg": kg, "scenes": c["scenes"], "diff": c["diff"], "ci95": c["ci95"],
+                   "p_value": c["p_value"]}
+            for name, rs in paired.items():
+                row[f"SR_{name}"] = sum(r["successes"] for r in rs) / sum(len(r["attempts"]) for r in rs)
+                row[f"before_lift_{name}"] = before_lift_losses(rs)[(name, kg)]["total"]
+            out.append(row)
     return out
 
 
