@@ -37,6 +37,10 @@ def test_a_lever_meets_the_targets_its_paired_figures_and_losses_meet(tmp_path):
     write_run(run, {("ours_x", 0.1): (-0.02, 0.8), ("ours_x", 1.5): (0.16, 0.04)},
               [("ours_x", 0.1, "no_object"), ("ours_x", 1.5, "jammed_on_approach"), ("ours_x", 1.5, "success"),
                ("binary", 0.1, "no_object"), ("binary", 1.5, "success")])
+    rounds = json.loads((run / "attempts.json").read_text())
+    rounds["rounds"].append({"method": "binary", "mass_kg": 1.5, "scene_id": "pile_000", "end": "no_feasible_grasp",
+                             "successes": 0, "attempts": 0})  # a scene ours_x has not run yet: not counted
+    (run / "attempts.json").write_text(json.dumps(rounds))
     m = lever_table.measure(run, "ours_x")
     assert m["diff"][1.5] == (0.16, 0.04, 16) and m["losses"] == (2, 1)
     assert lever_table.targets_met(m) == "0.1 kg, 1.5 kg"  # 2 lost against 1: over 1.5 x

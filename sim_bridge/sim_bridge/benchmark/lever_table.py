@@ -50,7 +50,8 @@ LIGHT_MIN, HEAVY_MIN, HEAVY_P, LOSS_RATIO_MAX = -0.03, 0.15, 0.05, 1.5
 
 def measure(run_dir: Path, method: str) -> dict | None:
     """{diff: {kg: (mean per-scene SR diff, p, scenes)}, losses: (method's, Binary's)} of
-    `method` against Binary in the run; None if the run or either method's report is not there."""
+    `method` against Binary in the run, the losses before the lift over the scenes both ran;
+    None if the run or either method's report is not there."""
     try:
         comparisons = json.loads((run_dir / "comparisons.json").read_text())
         rounds = load_rounds(run_dir)
@@ -63,9 +64,15 @@ def measure(run_dir: Path, method: str) -> dict | None:
             diff[c["mass_kg"]] = (p["diff"], p["p_value"], p["scenes"])
     if not diff:
         return None
-    losses = before_lift_losses(rounds)
-    shared = [kg for kg in diff if (method, kg) in losses and ("binary", kg) in losses]
-    return {"diff": diff, "losses": tuple(sum(losses[(m, kg)]["total"] for kg in shared) for m in (method, "binary"))}
+    # the losses over the scenes both ran at each weight, as the paired difference is
+    scenes = {}
+    for r in rounds:
+        scenes.setdefault((r["method"], r["mass_kg"]), set()).add(r["scene_id"])
+    both = {kg: scenes.get((method, kg), set()) & scenes.get(("binary", kg), set()) for kg in diff}
+    losses = before_lift_losses([r for r in rounds if r["method"] in (method, "binary")
+                                 and r["scene_id"] in both.get(r["mass_kg"], ())])
+    return {"diff": diff, "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both)
+                                          for m in (method, "binary"))}
 
 
 AFTER_LIFT = ("dropped", "dropped_in_hold", "dropped_in_shake")  # placed, lifted, then lost
