@@ -16,7 +16,7 @@ import json
 import math
 from pathlib import Path
 
-from .report import before_lift_losses
+from .report import AFTER_LIFT, before_lift_losses
 from .run_vs_run import load_rounds
 
 HELDOUT, PROCEDURAL = "held-out meshes", "procedural seed 1000"
@@ -73,9 +73,6 @@ def measure(run_dir: Path, method: str) -> dict | None:
                                  and r["scene_id"] in both.get(r["mass_kg"], ())])
     return {"diff": diff, "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both)
                                           for m in (method, "binary"))}
-
-
-AFTER_LIFT = ("dropped", "dropped_in_hold", "dropped_in_shake")  # placed, lifted, then lost
 
 
 def binary_drops(run_dir: Path, kg: float = 1.5) -> tuple | None:

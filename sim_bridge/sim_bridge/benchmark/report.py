@@ -257,6 +257,7 @@ def end_lines(rounds, plan) -> list:
 
 
 BEFORE_LIFT = ("closed_on_nothing", "contact_stops", "rounds_all_refused")
+AFTER_LIFT = ("dropped", "dropped_in_hold", "dropped_in_shake")  # outcome classes: placed, lifted, then lost
 
 
 def before_lift_losses(rounds) -> dict:

@@ -37,10 +37,10 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
-from ..benchmark.report import attempt_scores, outcome_class, wilson_interval
+from ..benchmark.report import AFTER_LIFT, attempt_scores, outcome_class, wilson_interval
 
 G_MPS2 = 9.81
-PLACED = ("success", "dropped", "dropped_in_hold", "dropped_in_shake")
+PLACED = ("success", *AFTER_LIFT)
 SCORE_BINS_N = (0.0, 30.0, 40.0, 50.0, 60.0, 80.0, math.inf)
 VALIDNESS_BINS = (0.0, 0.7, 0.8, 0.9, 0.95, 0.98, 1.0 + 1e-9)
 HOLD_LEVELS = (0.8, 0.9)
