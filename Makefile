@@ -27,6 +27,7 @@ help:
 	@echo "make benchmark-baselines - the paper's Fig. 5 baselines: VGN, VN-EdgeGraspNet (Panda) and VGN on the 2F-85 beside the committed rounds (256 rounds, ~10 h; pinned, background, resumable)"
 	@echo "make lever-clearance - issue 42's training lever: Ours retrained with the executor's clearance at label time, 16-scene lever runs (~3.5 h; pinned, background, resumable)"
 	@echo "make lever-guarded - issue 42's execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
+	@echo "make lever-selection METHOD=ours_precision_sure - issue 42's selection levers: one registered method beside the committed Ours, Binary, Ours-Precision rounds (~80 min; pinned, background, resumable)"
 	@echo "make baselines-figure - SR/CR vs weight of every method, held-out and procedural side by side, and the table, from the rounds so far"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
@@ -132,11 +133,14 @@ benchmark-baselines: setup
 	@$(call pinned_chain,out/benchmark_baselines.log,baselines_chain.sh)
 baselines-figure: setup
 	@$(ROS) python -m sim_bridge.benchmark.baselines_figure
-.PHONY: lever-clearance lever-guarded
+.PHONY: lever-clearance lever-guarded lever-selection
+METHOD ?= ours_precision_sure
 lever-clearance: setup
 	@$(call pinned_chain,out/clearance_lever.log,clearance_lever_chain.sh)
 lever-guarded: setup
 	@$(call pinned_chain,out/guarded_lever.log,guarded_lever_chain.sh)
+lever-selection: setup
+	@$(call pinned_chain,out/lever_$(METHOD).log,selection_lever_chain.sh $(METHOD))
 
 # Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
 # cheaper label settings (make label-settings-study), the held-out meshes left out.

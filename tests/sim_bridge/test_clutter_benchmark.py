@@ -372,6 +372,12 @@ def test_a_selection_variant_takes_only_sure_grasps_of_its_base_methods_model(tm
         assert every and all(g.rank_key == g.score_n for g in every)
         voxels = [tuple(g.voxel_index) for g in sure]
         assert voxels == ([tuple(g.voxel_index) for g in every] if sure_expected else [])
+        # Ours-Precision's sure variant: the same floor on the precision-only model's file
+        precision_sure = methods.METHODS["ours_precision_sure"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
+        assert [tuple(g.voxel_index) for g in precision_sure] == voxels
+    save_test_model(tmp_path / "gravgrasp_precision_only.pt")
+    assert bench_rounds.resolve_methods(["ours_precision_sure"], tmp_path) == {
+        "ours_precision_sure": str((tmp_path / "gravgrasp_precision_only.pt").resolve())}
 
 
 

@@ -30,6 +30,11 @@ METHODS = {m.name: m for m in (
     # 0.62-0.82, Binary's picks at a median 0.97 (doc/before-lift-diagnosis.md)
     gravgrasp.model_method("ours_sure", "gravgrasp.pt", "Ours ranked by score among grasps of validness >= 0.9",
                            validness_floor=0.9, file_of="ours"),
+    # the two held-out levers that reached +15 points at 1.5 kg, together: Ours-Precision's
+    # model (precision labels only) with Ours-Sure's floor (doc/levers.md)
+    gravgrasp.model_method("ours_precision_sure", "gravgrasp_precision_only.pt",
+                           "Ours-Precision ranked by score among grasps of validness >= 0.9",
+                           validness_floor=0.9, file_of="ours_precision"),
     # the other selection lever: VGN's mask, tested where VGN's TCP would sit on each
     # candidate's approach (at this TCP, the pinch point, it dropped 32 of Ours' 39 first
     # picks that succeeded; there, none of them and 3 of the 8 that failed before the lift:
