@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# Issue 42's decisive runs for the chosen lever METHOD (a registered method; the rule that
+# chose it: sim_bridge/doc/levers.md), against Binary, the shipped Ours and Ours-Precision:
+#   sim_bridge/results/heldout_v4_decisive (the 48 held-out meshes) and
+#   procedural_v4_decisive (procedural seed 1000): 32 scenes, the lever runs' 16 (their
+#     committed rounds copied: paired_run) and 16 new ones;
+#   procedural_s2000_confirm: procedural seed 2000, which no choice saw, 32 scenes, once,
+#     METHOD and Binary at 0.1 and 1.5 kg.
+# In the order that decides first (each step resumes; the copied rounds are not rerun):
+#   1. METHOD and Binary at 0.1 and 1.5 kg, 32 scenes, held-out then procedural (128 new rounds)
+#   2. the seed-2000 confirmation (128 rounds)
+#   3. METHOD and Binary at 4 kg, Ours-Precision at 1.5 and 4 kg, 32 scenes (held-out: 96 new)
+#   4. METHOD at 0.5 kg on the first 16 scenes (Binary's, Ours' and Ours-Precision's are copied)
+# ~1.3 min a round on 2 cores, ~12 h in all: one line per session resumes it
+# (`make lever-decisive METHOD=... PIN=<the commit it started on>`):
+#   ros_ws/run_pinned.sh COMMIT out/decisive_METHOD.log -- out/pinned/<COMMIT:12>/sim_bridge/scripts/decisive_chain.sh METHOD
+# Commit the rounds as they come: git add sim_bridge/results/*_decisive sim_bridge/results/procedural_s2000_confirm
+set -euo pipefail
+export PYTHONUNBUFFERED=1
+[ $# -eq 1 ] || { echo "usage: sim_bridge/scripts/decisive_chain.sh METHOD (the chosen lever, e.g. ours_sure; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+method="$1"
+meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
+workers="${WORKERS:-2}"
+heldout=(--meshes "$meshes" --only models/vgn_heldout_meshes.txt)
+everyone="ours,binary,ours_precision,$method"
+
+copy() {  # copy SOURCE OUT METHODS: SOURCE's scenes and the rounds of METHODS into OUT
+  [ -d "sim_bridge/results/$1" ] || return 0
+  python -m sim_bridge.benchmark.paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" --methods "$3"
+}
+bench() {  # bench OUT SCENES WEIGHTS METHODS [OPTION...]
+  echo "[decisive] $(date -u +%FT%TZ) $1: $4 at $3 kg, $2 scenes"
+  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --workers "$workers" --no-progress \
+    --scenes "$2" --weights "$3" --methods "$4" "${@:5}" \
+    || echo "[decisive] some rounds of $1 failed (listed above; a rerun retries them); going on"
+}
+report() {  # report OUT METHODS WEIGHTS [OPTION...]
+  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --report --no-progress \
+    --scenes 32 --weights "$3" --methods "$2" "${@:4}" | tail -n 24
+}
+
+# the committed 16-scene rounds of the same scenes (only those of methods the copy names)
+copy heldout_v4_sure heldout_v4_decisive "ours,binary"
+copy heldout_v4 heldout_v4_decisive "ours,binary,ours_precision"  # with 0.5 kg
+copy heldout_v4_4kg heldout_v4_decisive "ours,binary"
+copy procedural_v4_sure procedural_v4_decisive "ours,binary"
+copy procedural_v4 procedural_v4_decisive "ours,binary"
+copy baselines_procedural procedural_v4_decisive "ours_precision"
+for set in heldout procedural; do  # METHOD's lever-run rounds, from the run that measured it
+  for lever_run in "${set}_v4_sure" "${set}_v4_${method#ours_}"; do
+    [ ! -d "sim_bridge/results/$lever_run/rounds/$method" ] || copy "$lever_run" "${set}_v4_decisive" "$method"
+  done
+done
+
+bench heldout_v4_decisive 32 0.1,1.5 "$method,binary" "${heldout[@]}"
+bench procedural_v4_decisive 32 0.1,1.5 "$method,binary"
+report heldout_v4_decisive "$method,binary" 0.1,1.5 "${heldout[@]}"
+report procedural_v4_decisive "$method,binary" 0.1,1.5
+bench procedural_s2000_confirm 32 0.1,1.5 "$method,binary" --procedural-seed 2000
+report procedural_s2000_confirm "$method,binary" 0.1,1.5 --procedural-seed 2000
+bench heldout_v4_decisive 32 4.0 "$method,binary" "${heldout[@]}"
+bench heldout_v4_decisive 32 1.5,4.0 ours_precision "${heldout[@]}"
+bench procedural_v4_decisive 32 4.0 "$method,binary"
+bench procedural_v4_decisive 32 1.5,4.0 ours_precision
+bench heldout_v4_decisive 16 0.5 "$method" "${heldout[@]}"
+bench procedural_v4_decisive 16 0.5 "$method"
+report heldout_v4_decisive "$everyone" 0.1,0.5,1.5,4.0 "${heldout[@]}"
+report procedural_v4_decisive "$everyone" 0.1,0.5,1.5,4.0
+echo "[decisive] $(date -u +%FT%TZ) done"
