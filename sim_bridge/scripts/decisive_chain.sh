@@ -34,9 +34,11 @@ bench() {  # bench OUT SCENES WEIGHTS METHODS [OPTION...]
     --scenes "$2" --weights "$3" --methods "$4" "${@:5}" \
     || echo "[decisive] some rounds of $1 failed (listed above; a rerun retries them); going on"
 }
-report() {  # report OUT METHODS WEIGHTS [OPTION...]
+report() {  # report OUT METHODS WEIGHTS [OPTION...]: the run's report, then its 16 scenes no choice saw
   python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --report --no-progress \
     --scenes 32 --weights "$3" --methods "$2" "${@:4}" | tail -n 24
+  [[ "$1" != *_decisive ]] || python -m sim_bridge.benchmark.fresh_scenes "sim_bridge/results/$1" --after 16 \
+    --methods "$2" | tail -n 12 || true
 }
 
 # the committed 16-scene rounds of the same scenes (only those of methods the copy names)

@@ -1,0 +1,85 @@
+"""A run's methods against Binary over its later scenes only: the scenes a decisive run
+added to the ones its lever was chosen on (issue 42: the 32-scene runs hold the 16 tuning
+scenes, whose figures a choice has seen, and 16 new ones, whose figures it has not):
+
+    python -m sim_bridge.benchmark.fresh_scenes RUN --after 16 [--methods ours_sure]
+
+Reads the run's attempts.json (run its --report first). The scenes left out are the first
+`--after` of the benchmark's order (packed_000, pile_000, packed_001, ...). Per method and
+weight: SR of each over the fresh scenes, the mean per-scene SR difference to Binary with
+its paired bootstrap interval and sign-flip p (benchmark/paired.py). Prints
+`p_paired_<method>_vs_binary_<kg>_fresh=` and `diff_<method>_vs_binary_<kg>_fresh=` lines."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+from .paired import compare_paired
+from .protocol import scene_ids, weight_key
+from .run_vs_run import load_rounds
+
+
+def fresh_comparisons(rounds: list, after: int, methods=None) -> list:
+    """compare_paired against Binary over the rounds of scenes past the first `after`, each
+    row with the pooled SR of the method and of Binary over the scenes it pairs."""
+    seen = set(scene_ids(after))
+    fresh = [r for r in rounds if r["scene_id"] not in seen]
+    rows = []
+    for c in compare_paired(fresh):
+        if methods and c["method"] not in methods:
+            continue
+        rates = {}
+        for name in (c["method"], "binary"):
+            rs = {r["scene_id"]: r for r in fresh if r["method"] == name and r["mass_kg"] == c["mass_kg"]
+                  and r["attempts"]}
+            rates[name] = rs
+        shared = rates[c["method"]].keys() & rates["binary"].keys()
+        for name, key in ((c["method"], "SR"), ("binary", "SR_binary")):
+            attempts = sum(len(rates[name][s]["attempts"]) for s in shared)
+            c[key] = sum(rates[name][s]["successes"] for s in shared) / attempts if attempts else float("nan")
+        rows.append(c)
+    return rows
+
+
+def table_lines(rows, after: int) -> list:
+    lines = [f"Scenes after the first {after}: per scene, paired against Binary.", "",
+             "| method | weight [kg] | scenes | SR | SR binary | per scene: SR − SR binary | 95 % CI | p |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['scenes']} | {100 * r['SR']:.1f} % | "
+                     f"{100 * r['SR_binary']:.1f} % | {100 * r['diff']:+.1f} pts | {100 * r['ci95'][0]:+.1f} to "
+                     f"{100 * r['ci95'][1]:+.1f} | {r['p_value']:.3f} |")
+    return lines
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("run", help="a benchmark run's --out, after its --report")
+    p.add_argument("--after", type=int, required=True, help="leave out the first N scenes (the tuning scenes)")
+    p.add_argument("--methods", default="", help="comma-separated; default every method beside Binary")
+    args = p.parse_args(argv)
+    if args.after < 0:
+        print(f"fresh_scenes: --after {args.after}: give a number of scenes >= 0", file=sys.stderr)
+        return 2
+    try:
+        rows = fresh_comparisons(load_rounds(args.run), args.after, [m for m in args.methods.split(",") if m])
+    except (ValueError, OSError, KeyError, json.JSONDecodeError) as e:
+        print(f"fresh_scenes: {e}", file=sys.stderr)
+        return 2
+    if not rows:
+        print(f"fresh_scenes: no method pairs with Binary on a scene after the first {args.after} in "
+              f"{pathlib.Path(args.run)}", file=sys.stderr)
+        return 2
+    print("\n".join(table_lines(rows, args.after)))
+    for r in rows:
+        print(f"p_paired_{r['method']}_vs_binary_{weight_key(r['mass_kg'])}_fresh={r['p_value']:.3f}")
+    for r in rows:
+        print(f"diff_{r['method']}_vs_binary_{weight_key(r['mass_kg'])}_fresh={r['diff']:+.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
