@@ -4,7 +4,8 @@
 measured it on each tuning set (`comparisons.json` and `attempts.json`, which `benchmark
 --report` writes) and prints one Markdown table: the method's SR − Binary's per scene,
 paired (benchmark/paired.py), at 0.1 and 1.5 kg with its p value; its attempts lost before
-the lift against Binary's over those weights (report.before_lift_losses); and which of
+the lift against Binary's over those weights (report.before_lift_losses); CR of both at
+each weight over the same scenes (a lever can raise SR by attempting less); and which of
 the issue's three targets it meets there. A lever whose run is not there yet says so.
 sim_bridge/doc/levers.md holds exactly this output (tests/sim_bridge/test_lever_table.py).
 """
@@ -72,10 +73,15 @@ def measure(run_dir: Path, method: str) -> dict | None:
     for r in rounds:
         scenes.setdefault((r["method"], r["mass_kg"]), set()).add(r["scene_id"])
     both = {kg: scenes.get((method, kg), set()) & scenes.get(("binary", kg), set()) for kg in diff}
-    losses = before_lift_losses([r for r in rounds if r["method"] in (method, "binary")
-                                 and r["scene_id"] in both.get(r["mass_kg"], ())])
-    return {"diff": diff, "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both)
-                                          for m in (method, "binary"))}
+    paired = [r for r in rounds if r["method"] in (method, "binary") and r["scene_id"] in both.get(r["mass_kg"], ())]
+    losses = before_lift_losses(paired)
+    # CR beside SR: a floor that leaves views without a grasp raises SR by attempting less
+    cr = {kg: tuple(sum(r["successes"] for r in rs) / sum(r["n_objects"] for r in rs) if rs else math.nan
+                    for rs in ([r for r in paired if r["method"] == m and r["mass_kg"] == kg]
+                               for m in (method, "binary")))
+          for kg in both}
+    return {"diff": diff, "cr": cr, "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both)
+                                                    for m in (method, "binary"))}
 
 
 def binary_drops(run_dir: Path, kg: float = 1.5) -> tuple | None:
@@ -109,10 +115,15 @@ def _diff_cell(m: dict, kg: float) -> str:
     return f"{100 * d:+.1f} pts, p = {p:.2g} ({scenes})".replace("-", "−")
 
 
+def _cr_cell(m: dict) -> str:
+    return " · ".join(f"{100 * m['cr'][kg][0]:.0f} / {100 * m['cr'][kg][1]:.0f} %" if kg in m["cr"] else "—"
+                      for kg in WEIGHTS_KG)
+
+
 def table_lines(root: Path = REPO_ROOT) -> list:
     lines = ["| lever | kind | switch | objects | Ours − Binary 0.1 kg | Ours − Binary 1.5 kg "
-             "| lost before the lift, Ours / Binary | targets met |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| lost before the lift, Ours / Binary | CR 0.1 kg · 1.5 kg, Ours / Binary | targets met |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for lever, kind, switch, method, runs in LEVERS:
         for objects in (HELDOUT, PROCEDURAL):
             head = f"| {lever} | {kind} | {switch} | {objects} |"
@@ -120,12 +131,12 @@ def table_lines(root: Path = REPO_ROOT) -> list:
             m = measure(root / RESULTS / run, method) if run else None
             if m is None:
                 why = f"not run yet (`{run}`)" if run else "not run"
-                lines.append(f"{head} {why} | | | |")
+                lines.append(f"{head} {why} | | | | |")
                 continue
             own, binary = m["losses"]
             ratio = f" (× {own / binary:.1f})" if binary else ""
             lines.append(f"{head} {_diff_cell(m, 0.1)} | {_diff_cell(m, 1.5)} | {own} / {binary}{ratio} "
-                         f"| {targets_met(m)} |")
+                         f"| {_cr_cell(m)} | {targets_met(m)} |")
     ceilings = []
     for objects, run in LEVERS[0][4].items():
         drops = binary_drops(root / RESULTS / run)
