@@ -28,9 +28,12 @@ def test_only_the_scenes_after_the_first_n_are_compared(tmp_path, capsys):
 
 def test_nothing_fresh_or_no_report_is_one_clear_error(tmp_path, capsys):
     write_run(tmp_path / "run", [("ours", 0.1, "packed_000", ["success"], "table_clear"),
-                                 ("binary", 0.1, "packed_000", ["success"], "table_clear")])
-    assert fresh_scenes.main([str(tmp_path / "run"), "--after", "16"]) == 2
-    assert "no method pairs with Binary" in capsys.readouterr().err
+                                 ("binary", 0.1, "packed_000", ["success"], "table_clear"),
+                                 ("ours", 0.1, "pile_000", ["success"], "table_clear"),  # Binary not yet there
+                                 ("binary", 0.1, "packed_001", ["success"], "table_clear")])
+    for after in ("1", "16"):  # past packed_000 both ran on no scene in common; past 16 on none at all
+        assert fresh_scenes.main([str(tmp_path / "run"), "--after", after]) == 2
+        assert "no method pairs with Binary" in capsys.readouterr().err
     (tmp_path / "run" / "attempts.json").unlink()
     assert fresh_scenes.main([str(tmp_path / "run"), "--after", "1"]) == 2
     assert "run the benchmark's --report" in capsys.readouterr().err

@@ -24,22 +24,19 @@ from .run_vs_run import load_rounds
 
 def fresh_comparisons(rounds: list, after: int, methods=None) -> list:
     """compare_paired against Binary over the rounds of scenes past the first `after`, each
-    row with the pooled SR of the method and of Binary over the scenes it pairs."""
+    row with the pooled SR of the method (SR) and of Binary (SR_binary) over the scenes it pairs."""
     seen = set(scene_ids(after))
-    fresh = [r for r in rounds if r["scene_id"] not in seen]
+    fresh = [r for r in rounds if r["scene_id"] not in seen and r["attempts"]]
     rows = []
     for c in compare_paired(fresh):
-        if methods and c["method"] not in methods:
+        if (methods and c["method"] not in methods) or not c["scenes"]:
             continue
-        rates = {}
-        for name in (c["method"], "binary"):
-            rs = {r["scene_id"]: r for r in fresh if r["method"] == name and r["mass_kg"] == c["mass_kg"]
-                  and r["attempts"]}
-            rates[name] = rs
-        shared = rates[c["method"]].keys() & rates["binary"].keys()
+        of = {name: {r["scene_id"]: r for r in fresh if r["method"] == name and r["mass_kg"] == c["mass_kg"]}
+              for name in (c["method"], "binary")}
+        shared = of[c["method"]].keys() & of["binary"].keys()
         for name, key in ((c["method"], "SR"), ("binary", "SR_binary")):
-            attempts = sum(len(rates[name][s]["attempts"]) for s in shared)
-            c[key] = sum(rates[name][s]["successes"] for s in shared) / attempts if attempts else float("nan")
+            paired = [of[name][s] for s in shared]
+            c[key] = sum(r["successes"] for r in paired) / sum(len(r["attempts"]) for r in paired)
         rows.append(c)
     return rows
 
