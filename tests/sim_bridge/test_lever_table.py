@@ -27,7 +27,7 @@ def write_run(run, diffs, attempts):
         {"method": m, "mass_kg": kg, "diff": d, "p_value": p, "paired": {"scenes": 16, "diff": d, "p_value": p}}
         for (m, kg), (d, p) in diffs.items()]))
     rounds = [{"method": m, "mass_kg": kg, "scene_id": "packed_000", "end": "table_clear", "n_objects": 5,
-               "successes": sum(o == "success" for mm, kk, o in attempts if (mm, kk) == (m, kg)), "attempts": 1}
+               "fell_off": [], "successes": sum(o == "success" for mm, kk, o in attempts if (mm, kk) == (m, kg)), "attempts": 1}
               for m, kg in dict.fromkeys((m, kg) for m, kg, _ in attempts)]
     run.joinpath("attempts.json").write_text(json.dumps({"rounds": rounds, "attempts": [
         {"method": m, "mass_kg": kg, "scene_id": "packed_000", "outcome": o, "reason": ""} for m, kg, o in attempts]}))
@@ -40,7 +40,7 @@ def test_a_lever_meets_the_targets_its_paired_figures_and_losses_meet(tmp_path):
                ("binary", 0.1, "no_object"), ("binary", 1.5, "success")])
     rounds = json.loads((run / "attempts.json").read_text())
     rounds["rounds"].append({"method": "binary", "mass_kg": 1.5, "scene_id": "pile_000", "end": "no_feasible_grasp",
-                             "n_objects": 5, "successes": 0, "attempts": 0})  # a scene ours_x has not run yet: not counted
+                             "n_objects": 5, "fell_off": [], "successes": 0, "attempts": 0})  # a scene ours_x has not run yet: not counted
     (run / "attempts.json").write_text(json.dumps(rounds))
     m = lever_table.measure(run, "ours_x")
     assert m["diff"][1.5] == (0.16, 0.04, 16) and m["losses"] == (2, 1)

@@ -13,7 +13,7 @@ def write_run(run, rounds, scenes=("packed_000", "pile_000")):
         (run / "scenes" / f"{sid}.json").write_text(json.dumps({"scene_id": sid, "objects": [sid]}))
     attempts, records = [], []
     for method, kg, sid, outcomes, end in rounds:
-        records.append({"method": method, "mass_kg": kg, "scene_id": sid, "end": end, "n_objects": 5,
+        records.append({"method": method, "mass_kg": kg, "scene_id": sid, "end": end, "n_objects": 5, "fell_off": [],
                         "successes": outcomes.count("success"), "attempts": len(outcomes)})
         attempts += [{"method": method, "mass_kg": kg, "scene_id": sid, "outcome": o, "success": o == "success",
                       "reason": ""} for o in outcomes]

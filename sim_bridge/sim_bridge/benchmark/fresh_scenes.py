@@ -19,6 +19,7 @@ import sys
 
 from .paired import compare_paired
 from .protocol import scene_ids, weight_key
+from .report import summarize
 from .run_vs_run import load_rounds
 
 
@@ -34,9 +35,9 @@ def fresh_comparisons(rounds: list, after: int, methods=None) -> list:
         of = {name: {r["scene_id"]: r for r in fresh if r["method"] == name and r["mass_kg"] == c["mass_kg"]}
               for name in (c["method"], "binary")}
         shared = of[c["method"]].keys() & of["binary"].keys()
-        for name, key in ((c["method"], "SR"), ("binary", "SR_binary")):
-            paired = [of[name][s] for s in shared]
-            c[key] = sum(r["successes"] for r in paired) / sum(len(r["attempts"]) for r in paired)
+        pooled = summarize([rs[s] for rs in of.values() for s in shared],
+                           {name: [c["mass_kg"]] for name in of})
+        c["SR"], c["SR_binary"] = (row["SR"] for row in pooled)
         rows.append(c)
     return rows
 

@@ -17,7 +17,7 @@ import json
 import math
 from pathlib import Path
 
-from .report import AFTER_LIFT, before_lift_losses
+from .report import AFTER_LIFT, before_lift_losses, summarize
 from .run_vs_run import load_rounds
 
 HELDOUT, PROCEDURAL = "held-out meshes", "procedural seed 1000"
@@ -76,10 +76,8 @@ def measure(run_dir: Path, method: str) -> dict | None:
     paired = [r for r in rounds if r["method"] in (method, "binary") and r["scene_id"] in both.get(r["mass_kg"], ())]
     losses = before_lift_losses(paired)
     # CR beside SR: a floor that leaves views without a grasp raises SR by attempting less
-    cr = {kg: tuple(sum(r["successes"] for r in rs) / sum(r["n_objects"] for r in rs) if rs else math.nan
-                    for rs in ([r for r in paired if r["method"] == m and r["mass_kg"] == kg]
-                               for m in (method, "binary")))
-          for kg in both}
+    rows = {(r["method"], r["mass_kg"]): r for r in summarize(paired, {method: list(both), "binary": list(both)})}
+    cr = {kg: (rows[(method, kg)]["CR"], rows[("binary", kg)]["CR"]) for kg in both}
     return {"diff": diff, "cr": cr, "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both)
                                                     for m in (method, "binary"))}
 
