@@ -60,3 +60,28 @@ def test_binarys_drops_after_the_lift_bound_what_holding_better_can_gain(tmp_pat
                         ("binary", 1.5, "success"), ("binary", 1.5, "dropped"), ("binary", 0.1, "dropped")])
     assert lever_table.binary_drops(run) == (2, 4)  # a close on nothing is placement, not holding
     assert lever_table.binary_drops(tmp_path / "absent") is None
+
+
+def test_the_decisive_rows_can_leave_out_the_scenes_the_lever_was_chosen_on(tmp_path):
+    run = tmp_path / "run"
+    write_run(run, {("ours_x", 1.5): (0.5, 0.5)}, [])  # the whole run's comparison: not used with `after`
+    attempts = [(m, s, o) for m, s, o in (("ours_x", "packed_000", "no_object"), ("binary", "packed_000", "success"),
+                                          ("ours_x", "pile_000", "success"), ("binary", "pile_000", "dropped"),
+                                          ("binary", "pile_000", "no_object"))]
+    rounds = [{"method": m, "mass_kg": 1.5, "scene_id": s, "end": "table_clear", "n_objects": 5, "fell_off": [],
+               "successes": sum(o == "success" for mm, ss, o in attempts if (mm, ss) == (m, s)), "attempts": 1}
+              for m, s in dict.fromkeys((m, s) for m, s, _ in attempts)]
+    run.joinpath("attempts.json").write_text(json.dumps({"rounds": rounds, "attempts": [
+        {"method": m, "mass_kg": 1.5, "scene_id": s, "outcome": o, "reason": ""} for m, s, o in attempts]}))
+    m = lever_table.measure(run, "ours_x", after=1)  # packed_000 was the tuning scene
+    d, p, scenes = m["diff"][1.5]
+    assert (d, scenes) == (1.0, 1) and m["losses"] == (0, 1)  # pile_000 only: 1/1 against 0/2
+    assert lever_table.measure(run, "ours_x")["diff"][1.5] == (0.5, 0.5, 16)  # without: the run's own comparison
+
+
+def test_the_doc_holds_the_decisive_table_the_command_prints():
+    text = (ROOT / "sim_bridge/doc/levers.md").read_text()
+    m = re.search(r"<!-- decisive-table: [^>]*-->\n(.*?)\n<!-- /decisive-table -->", text, re.S)
+    assert m, "levers.md has no <!-- decisive-table --> block"
+    assert m.group(1).split("\n") == lever_table.decisive_lines(ROOT), \
+        "levers.md's decisive table differs: paste `python -m sim_bridge.benchmark.lever_table --decisive` into it"

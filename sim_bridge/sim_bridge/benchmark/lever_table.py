@@ -7,7 +7,10 @@ paired (benchmark/paired.py), at 0.1 and 1.5 kg with its p value; its attempts l
 the lift against Binary's over those weights (report.before_lift_losses); CR of both at
 each weight over the same scenes (a lever can raise SR by attempting less); and which of
 the issue's three targets it meets there. A lever whose run is not there yet says so.
-sim_bridge/doc/levers.md holds exactly this output (tests/sim_bridge/test_lever_table.py).
+`--decisive` prints the same columns for the chosen lever's decisive runs instead: 32
+scenes on each tuning set, their 16 new scenes alone (the ones no choice saw), and the
+unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both outputs
+(tests/sim_bridge/test_lever_table.py).
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ import json
 import math
 from pathlib import Path
 
+from .fresh_scenes import fresh_comparisons
+from .protocol import scene_ids
 from .report import AFTER_LIFT, before_lift_losses, summarize
 from .run_vs_run import load_rounds
 
@@ -44,6 +49,14 @@ LEVERS = (
     ("guarded approach, 10 mm", "execution", "execute `close_on_contact_within_m:=0.01`", "ours",
      {HELDOUT: "heldout_v4_guarded_approach"}),  # procedural half not run: no effect held-out (levers.md)
 )
+# The lever the rule in levers.md chose, and its decisive runs (scripts/decisive_chain.sh):
+# (objects, run, tuning scenes left out: the first 16 are the ones it was chosen on).
+DECISIVE_LEVER = LEVERS[3]
+DECISIVE = (("held-out meshes, 32 scenes", "heldout_v4_decisive", 0),
+            ("held-out meshes, the 16 new scenes", "heldout_v4_decisive", 16),
+            ("procedural seed 1000, 32 scenes", "procedural_v4_decisive", 0),
+            ("procedural seed 1000, the 16 new scenes", "procedural_v4_decisive", 16),
+            ("procedural seed 2000, which no choice saw, 32 scenes", "procedural_s2000_confirm", 0))
 WEIGHTS_KG = (0.1, 1.5)
 RESULTS = "sim_bridge/results"
 REPO_ROOT = Path(__file__).resolve().parents[3]
@@ -52,15 +65,21 @@ REPO_ROOT = Path(__file__).resolve().parents[3]
 LIGHT_MIN, HEAVY_MIN, HEAVY_P, LOSS_RATIO_MAX = -0.03, 0.15, 0.05, 1.5
 
 
-def measure(run_dir: Path, method: str) -> dict | None:
+def measure(run_dir: Path, method: str, after: int = 0) -> dict | None:
     """{diff: {kg: (mean per-scene SR diff, p, scenes)}, losses: (method's, Binary's)} of
     `method` against Binary in the run, the losses before the lift over the scenes both ran;
+    with `after`, over the scenes past the run's first `after` only (fresh_scenes.py).
     None if the run or either method's report is not there."""
     try:
         comparisons = json.loads((run_dir / "comparisons.json").read_text())
         rounds = load_rounds(run_dir)
     except (OSError, ValueError):
         return None
+    if after:
+        seen = set(scene_ids(after))
+        rounds = [r for r in rounds if r["scene_id"] not in seen]
+        comparisons = [{"method": c["method"], "mass_kg": c["mass_kg"], "paired": c}
+                       for c in fresh_comparisons(rounds, 0, [method])]
     diff = {}
     for c in comparisons:
         p = c.get("paired")
@@ -118,23 +137,39 @@ def _cr_cell(m: dict) -> str:
                       for kg in WEIGHTS_KG)
 
 
+MEASURED = ("Ours − Binary 0.1 kg", "Ours − Binary 1.5 kg", "lost before the lift, Ours / Binary",
+            "CR 0.1 kg · 1.5 kg, Ours / Binary", "targets met")
+
+
+def _header(*first: str) -> list:
+    columns = first + MEASURED
+    return ["| " + " | ".join(columns) + " |", "|" + " --- |" * len(columns)]
+
+
+def _row(head: str, run: str | None, m: dict | None) -> str:
+    if m is None:
+        why = f"not run yet (`{run}`)" if run else "not run"
+        return f"{head} {why} | | | | |"
+    own, binary = m["losses"]
+    ratio = f" (× {own / binary:.1f})" if binary else ""
+    return (f"{head} {_diff_cell(m, 0.1)} | {_diff_cell(m, 1.5)} | {own} / {binary}{ratio} "
+            f"| {_cr_cell(m)} | {targets_met(m)} |")
+
+
+def decisive_lines(root: Path = REPO_ROOT) -> list:
+    """The chosen lever's decisive runs, in the lever table's columns."""
+    method = DECISIVE_LEVER[3]
+    return _header("objects") + [_row(f"| {objects} |", run, measure(root / RESULTS / run, method, after))
+                                 for objects, run, after in DECISIVE]
+
+
 def table_lines(root: Path = REPO_ROOT) -> list:
-    lines = ["| lever | kind | switch | objects | Ours − Binary 0.1 kg | Ours − Binary 1.5 kg "
-             "| lost before the lift, Ours / Binary | CR 0.1 kg · 1.5 kg, Ours / Binary | targets met |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = _header("lever", "kind", "switch", "objects")
     for lever, kind, switch, method, runs in LEVERS:
         for objects in (HELDOUT, PROCEDURAL):
-            head = f"| {lever} | {kind} | {switch} | {objects} |"
             run = runs.get(objects)
-            m = measure(root / RESULTS / run, method) if run else None
-            if m is None:
-                why = f"not run yet (`{run}`)" if run else "not run"
-                lines.append(f"{head} {why} | | | | |")
-                continue
-            own, binary = m["losses"]
-            ratio = f" (× {own / binary:.1f})" if binary else ""
-            lines.append(f"{head} {_diff_cell(m, 0.1)} | {_diff_cell(m, 1.5)} | {own} / {binary}{ratio} "
-                         f"| {_cr_cell(m)} | {targets_met(m)} |")
+            lines.append(_row(f"| {lever} | {kind} | {switch} | {objects} |", run,
+                              measure(root / RESULTS / run, method) if run else None))
     ceilings = []
     for objects, run in LEVERS[0][4].items():
         drops = binary_drops(root / RESULTS / run)
@@ -148,8 +183,10 @@ def table_lines(root: Path = REPO_ROOT) -> list:
 
 
 def main(argv=None) -> int:
-    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)
-    print("\n".join(table_lines()))
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--decisive", action="store_true", help="the chosen lever's decisive runs instead")
+    args = p.parse_args(argv)
+    print("\n".join(decisive_lines() if args.decisive else table_lines()))
     return 0
 
 
