@@ -6,17 +6,21 @@ import json
 import re
 from pathlib import Path
 
+import pytest
+
 from sim_bridge.benchmark import lever_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_the_doc_holds_what_the_command_prints():
+@pytest.mark.parametrize("tag, lines, command", [
+    ("lever-table", lever_table.table_lines, "python -m sim_bridge.benchmark.lever_table"),
+    ("decisive-table", lever_table.decisive_lines, "python -m sim_bridge.benchmark.lever_table --decisive")])
+def test_the_doc_holds_what_the_command_prints(tag, lines, command):
     text = (ROOT / "sim_bridge/doc/levers.md").read_text()
-    m = re.search(r"<!-- lever-table: [^>]*-->\n(.*?)\n<!-- /lever-table -->", text, re.S)
-    assert m, "levers.md has no <!-- lever-table --> block"
-    assert m.group(1).split("\n") == lever_table.table_lines(ROOT), \
-        "levers.md's table differs: paste `python -m sim_bridge.benchmark.lever_table` into it"
+    m = re.search(rf"<!-- {tag}: [^>]*-->\n(.*?)\n<!-- /{tag} -->", text, re.S)
+    assert m, f"levers.md has no <!-- {tag} --> block"
+    assert m.group(1).split("\n") == lines(ROOT), f"levers.md's {tag} differs: paste `{command}` into it"
 
 
 def write_run(run, diffs, attempts):
@@ -78,10 +82,3 @@ def test_the_decisive_rows_can_leave_out_the_scenes_the_lever_was_chosen_on(tmp_
     assert (d, scenes) == (1.0, 1) and m["losses"] == (0, 1)  # pile_000 only: 1/1 against 0/2
     assert lever_table.measure(run, "ours_x")["diff"][1.5] == (0.5, 0.5, 16)  # without: the run's own comparison
 
-
-def test_the_doc_holds_the_decisive_table_the_command_prints():
-    text = (ROOT / "sim_bridge/doc/levers.md").read_text()
-    m = re.search(r"<!-- decisive-table: [^>]*-->\n(.*?)\n<!-- /decisive-table -->", text, re.S)
-    assert m, "levers.md has no <!-- decisive-table --> block"
-    assert m.group(1).split("\n") == lever_table.decisive_lines(ROOT), \
-        "levers.md's decisive table differs: paste `python -m sim_bridge.benchmark.lever_table --decisive` into it"
