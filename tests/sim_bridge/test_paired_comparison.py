@@ -2,8 +2,10 @@
 against Binary: exact sign-flip p values on small cases, scenes without attempts left
 out, and the committed v4 held-out rounds giving the figures the docs quote."""
 import json
+import math
 import pathlib
 
+import numpy as np
 import pytest
 
 from sim_bridge.benchmark import paired
@@ -48,3 +50,16 @@ def test_the_committed_v4_rounds_give_the_figures_the_docs_quote():
     committed = json.loads((ROOT / "sim_bridge/results/heldout_v4/comparisons.json").read_text())
     assert {(c["method"], c["mass_kg"]): round(c["paired"]["p_value"], 6) for c in committed} == {
         k: round(v["p_value"], 6) for k, v in found.items()}
+
+
+def test_the_scenes_a_run_needs_grow_with_the_spread_of_the_per_scene_differences():
+    # sd 0.35 (the decisive held-out run at 1.5 kg): ((1.96 + 0.84) 0.35 / 0.10)^2 = 96.04 -> 97
+    spread = [0.35, -0.35] * 8
+    sd = float(np.std(spread, ddof=1))
+    assert paired.scenes_needed(spread) == math.ceil((2.8 * sd / 0.10) ** 2)
+    assert paired.scenes_needed([x / 2 for x in spread]) < paired.scenes_needed(spread) / 3.9  # a quarter, rounded up
+    assert paired.scenes_needed(spread, effect=0.20) < paired.scenes_needed(spread)
+    assert math.isnan(paired.scenes_needed([0.2]))
+    (c,) = paired.compare_paired([rnd("ours", "a", 2, 2), rnd("binary", "a", 1, 2),
+                                  rnd("ours", "b", 0, 2), rnd("binary", "b", 2, 2)])
+    assert c["scenes_for_10pts"] == paired.scenes_needed([0.5, -1.0])

@@ -31,7 +31,10 @@ Protocol (one *round* = one method, one object weight, one scene):
   Wilson intervals; each method's SR against Binary's at the same weight, per scene and
   paired (which decides: a sign-flip permutation test over the scenes' SR differences,
   benchmark/paired.py, printed `p_paired_<method>_vs_binary_<kg>=`) and pooled (a
-  two-proportion z test over attempts, `p_<method>_vs_binary_<kg>=`); results.md.
+  two-proportion z test over attempts, `p_<method>_vs_binary_<kg>=`); results.md. For
+  planning: the scenes a paired run would need to find a 10-point difference at p < 0.05
+  with 80 % power, from the spread of this run's per-scene differences
+  (`scenes_for_10pts_<method>_vs_binary_<kg>=`).
 - Attempts lost before the lift (closed on nothing, contact stops, rounds that ended with
   every grasp refused), per method and weight and against Binary's: results.md,
   `before_lift_<method>_<kg>=`.
@@ -229,6 +232,9 @@ def main(argv=None) -> int:
         print(f"p_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
         if c.get("paired"):
             print(f"p_paired_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['paired']['p_value']:.3f}")
+            if not math.isnan(c["paired"].get("scenes_for_10pts", math.nan)):  # older comparisons.json lack it
+                print(f"scenes_for_10pts_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}="
+                      f"{c['paired']['scenes_for_10pts']:.0f}")
     for r in rows:
         print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
     return 1 if missing and not args.report else 0
