@@ -7,9 +7,9 @@ paired (benchmark/paired.py), at 0.1 and 1.5 kg with its p value; its attempts l
 the lift against Binary's over those weights (report.before_lift_losses); CR of both at
 each weight over the same scenes (a lever can raise SR by attempting less); and which of
 the issue's three targets it meets there. A lever whose run is not there yet says so.
-`--decisive` prints the same columns for the chosen lever's decisive runs instead: 32
-scenes on each tuning set, their 16 new scenes alone (the ones no choice saw), and the
-unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both outputs
+`--decisive` prints the same columns for the decisive runs instead, of the chosen lever and
+of the shipped Ours: 32 scenes on each tuning set, their 16 new scenes alone (the ones no
+choice saw), and (the lever) the unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both outputs
 (tests/sim_bridge/test_lever_table.py).
 """
 
@@ -49,14 +49,17 @@ LEVERS = (
     ("guarded approach, 10 mm", "execution", "execute `close_on_contact_within_m:=0.01`", "ours",
      {HELDOUT: "heldout_v4_guarded_approach"}),  # procedural half not run: no effect held-out (levers.md)
 )
-# The lever the rule in levers.md chose, and its decisive runs (scripts/decisive_chain.sh):
-# (objects, run, tuning scenes left out: the first 16 are the ones it was chosen on).
-DECISIVE_LEVER = LEVERS[3]
-DECISIVE = (("held-out meshes, 32 scenes", "heldout_v4_decisive", 0),
-            ("held-out meshes, the 16 new scenes", "heldout_v4_decisive", 16),
-            ("procedural seed 1000, 32 scenes", "procedural_v4_decisive", 0),
-            ("procedural seed 1000, the 16 new scenes", "procedural_v4_decisive", 16),
-            ("procedural seed 2000, which no choice saw, 32 scenes", "procedural_s2000_confirm", 0))
+# The decisive runs (scripts/decisive_chain.sh) of the lever the rule in levers.md chose and
+# of the product that ships (the shipped Ours: the lever was not adopted), each
+# (method, objects, run, tuning scenes left out: the first 16 are the ones the lever was chosen on).
+LEVER, PRODUCT = "ours_precision_sure", "ours"
+DECISIVE = tuple((method, objects, run, after) for method in (LEVER, PRODUCT) for objects, run, after in (
+    ("held-out meshes, 32 scenes", "heldout_v4_decisive", 0),
+    ("held-out meshes, the 16 new scenes", "heldout_v4_decisive", 16),
+    ("procedural seed 1000, 32 scenes", "procedural_v4_decisive", 0),
+    ("procedural seed 1000, the 16 new scenes", "procedural_v4_decisive", 16),
+    ("procedural seed 2000, which no choice saw, 32 scenes", "procedural_s2000_confirm", 0))
+    if method == LEVER or run != "procedural_s2000_confirm")  # seed 2000 runs the lever only
 WEIGHTS_KG = (0.1, 1.5)
 RESULTS = "sim_bridge/results"
 REPO_ROOT = Path(__file__).resolve().parents[3]
@@ -157,10 +160,11 @@ def _row(head: str, run: str | None, m: dict | None) -> str:
 
 
 def decisive_lines(root: Path = REPO_ROOT) -> list:
-    """The chosen lever's decisive runs, in the lever table's columns."""
-    method = DECISIVE_LEVER[3]
-    return _header("objects") + [_row(f"| {objects} |", run, measure(root / RESULTS / run, method, after))
-                                 for objects, run, after in DECISIVE]
+    """The decisive runs, in the lever table's columns."""
+    names = {LEVER: next(lever for lever, *_, method, _ in LEVERS if method == LEVER), PRODUCT: "the shipped Ours"}
+    return _header("method", "objects") + [
+        _row(f"| {names[method]} | {objects} |", run, measure(root / RESULTS / run, method, after))
+        for method, objects, run, after in DECISIVE]
 
 
 def table_lines(root: Path = REPO_ROOT) -> list:
