@@ -23,11 +23,16 @@ from .report import summarize
 from .run_vs_run import load_rounds
 
 
+def fresh_rounds(rounds: list, after: int) -> list:
+    """The rounds of the scenes past the first `after` of the benchmark's order."""
+    seen = set(scene_ids(after))
+    return [r for r in rounds if r["scene_id"] not in seen]
+
+
 def fresh_comparisons(rounds: list, after: int, methods=None) -> list:
     """compare_paired against Binary over the rounds of scenes past the first `after`, each
     row with the pooled SR of the method (SR) and of Binary (SR_binary) over the scenes it pairs."""
-    seen = set(scene_ids(after))
-    fresh = [r for r in rounds if r["scene_id"] not in seen and r["attempts"]]
+    fresh = [r for r in fresh_rounds(rounds, after) if r["attempts"]]
     rows = []
     for c in compare_paired(fresh):
         if (methods and c["method"] not in methods) or not c["scenes"]:

@@ -20,8 +20,8 @@ import json
 import math
 from pathlib import Path
 
-from .fresh_scenes import fresh_comparisons
-from .protocol import scene_ids
+from .fresh_scenes import fresh_rounds
+from .paired import compare_paired
 from .report import AFTER_LIFT, before_lift_losses, summarize
 from .run_vs_run import load_rounds
 
@@ -78,11 +78,9 @@ def measure(run_dir: Path, method: str, after: int = 0) -> dict | None:
         rounds = load_rounds(run_dir)
     except (OSError, ValueError):
         return None
-    if after:
-        seen = set(scene_ids(after))
-        rounds = [r for r in rounds if r["scene_id"] not in seen]
-        comparisons = [{"method": c["method"], "mass_kg": c["mass_kg"], "paired": c}
-                       for c in fresh_comparisons(rounds, 0, [method])]
+    if after:  # the run's comparisons cover every scene: pair again over the fresh ones
+        rounds = fresh_rounds(rounds, after)
+        comparisons = [{"method": c["method"], "mass_kg": c["mass_kg"], "paired": c} for c in compare_paired(rounds)]
     diff = {}
     for c in comparisons:
         p = c.get("paired")
@@ -188,7 +186,7 @@ def table_lines(root: Path = REPO_ROOT) -> list:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--decisive", action="store_true", help="the chosen lever's decisive runs instead")
+    p.add_argument("--decisive", action="store_true", help="the decisive runs (the chosen lever, the shipped Ours) instead")
     args = p.parse_args(argv)
     print("\n".join(decisive_lines() if args.decisive else table_lines()))
     return 0
