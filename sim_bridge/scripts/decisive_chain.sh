@@ -5,22 +5,24 @@
 #   procedural_v4_decisive (procedural seed 1000): 32 scenes, the lever runs' 16 (their
 #     committed rounds copied: paired_run) and 16 new ones;
 #   procedural_s2000_confirm: procedural seed 2000, which no choice saw, 32 scenes, once,
-#     METHOD and Binary at 0.1 and 1.5 kg.
+#     PRODUCT and Binary at 0.1 and 1.5 kg (the issue's confirmation run), and METHOD.
 # In the order that decides first (each step resumes; the copied rounds are not rerun):
 #   1. METHOD and Binary at 0.1 and 1.5 kg, 32 scenes, held-out then procedural (128 new rounds)
-#   2. the seed-2000 confirmation (128 rounds)
 #   then the product, PRODUCT (METHOD if the runs above adopt it, else the shipped `ours`;
 #   levers.md says which), on the same 32 scenes:
-#   3. PRODUCT at 0.1 and 1.5 kg (nothing new when it is METHOD)
+#   2. PRODUCT at 0.1 and 1.5 kg (nothing new when it is METHOD)
+#   3. the seed-2000 confirmation: PRODUCT and Binary at 0.1 and 1.5 kg
 #   4. PRODUCT and Binary at 4 kg, Ours-Precision at 1.5 and 4 kg
 #   5. PRODUCT at 0.5 kg on the first 16 scenes (Binary's, Ours' and Ours-Precision's are copied)
+#   6. METHOD on seed 2000, when it is not PRODUCT: the unbiased estimate of a lever not adopted
+#      (it was step 2 until the lever failed step 1; its first rounds are kept)
 # ~1.4 min a round on 2 cores, ~12 h in all: one line per session resumes it
 # (`make lever-decisive METHOD=... [PRODUCT=...] PIN=<the commit it started on>`):
 #   ros_ws/run_pinned.sh COMMIT out/decisive_METHOD.log -- out/pinned/<COMMIT:12>/sim_bridge/scripts/decisive_chain.sh METHOD [PRODUCT]
 # Commit the rounds as they come: git add sim_bridge/results/*_decisive sim_bridge/results/procedural_s2000_confirm
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 1 ] || [ $# -eq 2 ] || { echo "usage: sim_bridge/scripts/decisive_chain.sh METHOD [PRODUCT] (the chosen lever, e.g. ours_sure; the method steps 3-5 run, default METHOD; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 1 ] || [ $# -eq 2 ] || { echo "usage: sim_bridge/scripts/decisive_chain.sh METHOD [PRODUCT] (the chosen lever, e.g. ours_sure; the method steps 2-5 run, default METHOD; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
 method="$1"
 product="${2:-$1}"
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
@@ -62,13 +64,13 @@ bench heldout_v4_decisive 32 0.1,1.5 "$method,binary" "${heldout[@]}"
 bench procedural_v4_decisive 32 0.1,1.5 "$method,binary"
 report heldout_v4_decisive "$method,binary" 0.1,1.5 "${heldout[@]}"
 report procedural_v4_decisive "$method,binary" 0.1,1.5
-bench procedural_s2000_confirm 32 0.1,1.5 "$method,binary" --procedural-seed 2000
-report procedural_s2000_confirm "$method,binary" 0.1,1.5 --procedural-seed 2000
 bench heldout_v4_decisive 32 0.1,1.5 "$product" "${heldout[@]}"
 bench procedural_v4_decisive 32 0.1,1.5 "$product"
 chosen="$method"; [ "$product" = "$method" ] || chosen="$method,$product"  # a report keeps only the methods it names
 report heldout_v4_decisive "$chosen,binary" 0.1,1.5 "${heldout[@]}"
 report procedural_v4_decisive "$chosen,binary" 0.1,1.5
+bench procedural_s2000_confirm 32 0.1,1.5 "$product,binary" --procedural-seed 2000
+report procedural_s2000_confirm "$product,binary" 0.1,1.5 --procedural-seed 2000  # not METHOD's few rounds yet
 bench heldout_v4_decisive 32 4.0 "$product,binary" "${heldout[@]}"
 bench heldout_v4_decisive 32 1.5,4.0 ours_precision "${heldout[@]}"
 bench procedural_v4_decisive 32 4.0 "$product,binary"
@@ -77,4 +79,6 @@ bench heldout_v4_decisive 16 0.5 "$product" "${heldout[@]}"
 bench procedural_v4_decisive 16 0.5 "$product"
 report heldout_v4_decisive "$everyone" 0.1,0.5,1.5,4.0 "${heldout[@]}"
 report procedural_v4_decisive "$everyone" 0.1,0.5,1.5,4.0
+bench procedural_s2000_confirm 32 0.1,1.5 "$method" --procedural-seed 2000
+report procedural_s2000_confirm "$chosen,binary" 0.1,1.5 --procedural-seed 2000
 echo "[decisive] $(date -u +%FT%TZ) done"
