@@ -674,6 +674,29 @@ def test_a_run_from_before_execution_settings_resumes_as_v4_and_refuses_others(t
                       report_only=True)
 
 
+def test_a_report_names_the_rounds_it_leaves_out(tmp_path):
+    """A report rewrites the run's summaries for the methods and weights it names only: the
+    rounds of the others stay on disk, and the report says whose it left out."""
+    from sim_bridge.benchmark.protocol import Protocol as P, with_execution
+    from sim_bridge.benchmark.rounds import run_benchmark
+    _legacy_config(tmp_path)
+    model = tmp_path / "m.pt"
+    model.write_bytes(b"x")
+    for method, kg in (("binary", "1.5"), ("ours", "0.1"), ("ours", "4.0")):
+        (tmp_path / "rounds" / method / kg).mkdir(parents=True)
+        (tmp_path / "rounds" / method / kg / "packed_000.json").write_text("{}")
+    (tmp_path / "rounds" / "ours" / "0.5").mkdir()  # no rounds there: nothing left out
+    notes = []
+    run_benchmark(tmp_path, {"ours": str(model)}, [0.1], 2, protocol=with_execution(P(), "v4"), report_only=True,
+                  note=notes.append)
+    assert len(notes) == 1 and "binary at 1.5 kg, ours at 4.0 kg (not named" in notes[0]
+    notes.clear()
+    run_benchmark(tmp_path, {"ours": str(model), "binary": str(model)}, [0.1, 1.5, 4.0], 2,
+                  protocol=with_execution(P(), "v4"), report_only=True, note=notes.append)
+    assert notes == []
+    assert (tmp_path / "rounds" / "binary" / "1.5" / "packed_000.json").exists()
+
+
 def test_execution_defaults_to_the_settings_of_the_run_being_resumed(tmp_path):
     """--execution left out: a run resumes (or gains a method) under its own settings, so a
     changed DEFAULT_EXECUTION never stops, or silently mixes, an older run."""

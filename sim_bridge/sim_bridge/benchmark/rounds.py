@@ -107,6 +107,18 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
     return [float(w) for w in weights_kg]
 
 
+def unreported_rounds(out, plan: dict) -> list:
+    """'method at W kg' for each method and weight with rounds in the run `out` that `plan`
+    ({method: [kg]}) does not name: a report for the plan rewrites the run's summaries without them."""
+    left_out = []
+    for weight_dir in sorted((pathlib.Path(out) / "rounds").glob("*/*")):
+        method, kg = weight_dir.parent.name, weight_dir.name
+        named = method in plan and kg in {weight_key(w) for w in plan[method]}
+        if not named and any(weight_dir.glob("*.json")):
+            left_out.append(f"{method} at {kg} kg")
+    return left_out
+
+
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
                   ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None,
@@ -170,6 +182,10 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     if report_only:
         listed = out / "excluded_objects.json"  # absent only if the run was stopped within its first second
         excluded = json.loads(listed.read_text()) if listed.exists() else []
+        left_out = unreported_rounds(out, plan)
+        if left_out:  # its summaries (comparisons.json, attempts.json) are rewritten without them
+            note(f"benchmark: this report leaves out the rounds in {out} of {', '.join(left_out)} (not named in "
+                 "--methods/--weights); name them too to keep them in results.md, comparisons.json and attempts.json")
         return write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only, failed,
                              config["procedural_seed"])
     atomic_files.save_json(config_path, {**config, "hands": hands, "machines": machines})
