@@ -293,6 +293,38 @@ def test_validness_ranking_for_a_binary_model():
         detection.DetectionOptions(precision="fp16")
 
 
+def test_a_score_model_ranks_the_grasps_another_model_places():
+    """score_model: the placing model's validness, threshold and rotations pick and pose the
+    grasps; the score model's score [N] at the same voxels ranks them and is what they carry."""
+    torch.manual_seed(0)
+    placer = networks.GraspNet().eval()
+    torch.manual_seed(1)
+    scorer = networks.GraspNet(score_scale_n=30.0).eval()
+    grid = table_grid().numpy()
+    with torch.inference_mode():
+        x = torch.from_numpy(grid)[None, None]
+        own_score, own_logit = (t[0] for t in placer.score_and_validness_from_half(placer.half_features(x)))
+        other_score = scorer.score_and_validness_from_half(scorer.half_features(x))[0][0]
+    validness = torch.sigmoid(own_logit)
+    threshold = float(validness[:, :, 5:9].median())  # near the table: some voxels pass, some not
+    options = detection.DetectionOptions(validness_threshold=threshold, max_grasps=1000)
+    grasps = detection.detect_grasps(placer, grid, VS, options=options, score_model=scorer)
+    assert len(grasps) > 3
+    assert [g.score_n for g in grasps] == pytest.approx([float(other_score[g.voxel_index]) for g in grasps], abs=1e-4)
+    assert [g.score_n for g in grasps] == sorted((g.score_n for g in grasps), reverse=True)
+    assert [g.validness for g in grasps] == pytest.approx([float(validness[g.voxel_index]) for g in grasps], abs=1e-5)
+    assert min(g.validness for g in grasps) >= threshold
+    # placed as the placer places its own: every one of them among the placer's candidates, same pose
+    placed = detection.detect_grasps(placer, grid, VS, options=dataclasses.replace(
+        options, rank_by="validness", has_score=False, nms_radius_voxels=0, max_grasps=10**6))
+    pose_at = {g.voxel_index: g.pose for g in placed}
+    for g in grasps:
+        np.testing.assert_allclose(g.pose, pose_at[g.voxel_index])
+    alone = detection.detect_grasps(placer, grid, VS, options=options)
+    assert [g.voxel_index for g in alone] != [g.voxel_index for g in grasps]  # the other score reorders them
+    assert not torch.allclose(own_score, other_score)
+
+
 def test_a_preferred_score_orders_but_never_empties():
     """prefer_score_n (a known payload's need, held_payload_score_n): ranked by validness,
     the grasps scored at least that first, then the others; above every score it leaves the

@@ -1,6 +1,7 @@
 """The clutter-removal benchmark (sim_bridge/benchmark/, issue 8): the round's
 rules on a scripted cell, the statistics, the object pool, missing models, and one
 small run in Drake (outputs, determinism, resume)."""
+import dataclasses
 import json
 import math
 import types
@@ -379,6 +380,40 @@ def test_a_selection_variant_takes_only_sure_grasps_of_its_base_methods_model(tm
     assert bench_rounds.resolve_methods(["ours_precision_sure"], tmp_path) == {
         "ours_precision_sure": str((tmp_path / "gravgrasp_precision_only.pt").resolve())}
 
+
+
+def test_binary_scored_takes_binarys_sure_grasps_ranked_by_ours_score(tmp_path):
+    """binary_scored: Binary's model places (its validness floor 0.9, its poses), Ours'
+    model beside it ranks by its score, which the grasps carry; without Ours' file beside
+    Binary's it is missing, and a score model without a score is refused."""
+    grid = np.zeros((40, 40, 40), np.float32)
+    grid[10:30, 10:30, 6:12] = 0.3
+    grid[10:30, 10:30, 12] = 0.5
+    view = (grid, 0.0075, np.zeros(3))
+    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
+    method = methods.METHODS["binary_scored"]
+    assert method.file_of == "binary" and method.hand == "2f85"
+    binary = save_test_model(tmp_path / "gravgrasp_binary.pt", target="binary")
+    notes = []
+    assert bench_rounds.resolve_methods(["binary_scored"], tmp_path, note=notes.append) == {}
+    assert "gravgrasp.pt not found beside gravgrasp_binary.pt: get it from models/" in notes[0]
+    torch.manual_seed(3)
+    ours = networks.GraspNet(score_scale_n=30.0)  # scores unlike the binary model's own head
+    model_file.save_model(tmp_path / "gravgrasp.pt", ours, tsdf.TSDFVolume(resolution=40),
+                          training_data={"target": "gravity-score"})
+    assert bench_rounds.resolve_methods(["binary_scored"], tmp_path) == {"binary_scored": str(binary.resolve())}
+    detector = method.make(str(binary), p)
+    assert detector.target == "gravity-score"
+    scored = detector.detect(view)
+    placed = methods.METHODS["binary"].make(str(binary), dataclasses.replace(p, validness_threshold=0.9)).detect(view)
+    assert scored and len(scored) <= len(placed)
+    assert all(g.validness >= 0.9 and np.isfinite(g.score_n) for g in scored)
+    assert [g.score_n for g in scored] == sorted((g.score_n for g in scored), reverse=True)
+    pose_at = {tuple(g.voxel_index): g.pose for g in placed}
+    assert all(np.allclose(g.pose, pose_at[tuple(g.voxel_index)]) for g in scored if tuple(g.voxel_index) in pose_at)
+    save_test_model(tmp_path / "gravgrasp.pt", target="binary")
+    with pytest.raises(ValueError, match="no gravity-rejection score"):
+        method.make(str(binary), p)
 
 
 def test_the_masked_variant_takes_only_grasps_vgns_mask_keeps_of_its_base_methods_model(tmp_path):

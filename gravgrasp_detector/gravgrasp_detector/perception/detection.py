@@ -233,7 +233,8 @@ def check_grid(tsdf_grid, resolution):
 
 
 @torch.inference_mode()
-def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), options=DetectionOptions()):
+def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), options=DetectionOptions(),
+                  score_model=None):
     """Ranked grasps (list of Grasp, best first) in the TSDF's frame.
 
     With options.rank_by "score" they are ranked by the gravity-rejection score [N], at
@@ -244,20 +245,15 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
 
     model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
     value convention. origin: the grid corner in the task frame (3-vector or 4x4).
+    score_model: another GraspNet whose score [N] stands for `model`'s (its validness and
+    rotations still place the grasps): a binary model places, a score model ranks among
+    the grasps it is sure of (options.has_score then says whether score_model has one).
     Raises InputError for an unusable grid.
     """
-    precision = resolve_precision(options.precision)
     grid = torch.as_tensor(np.asarray(tsdf_grid, dtype=np.float32))
-    check_grid(grid, model.resolution)
-    layout = _prepare(model, precision)
-    x = grid[None, None].contiguous(memory_format=layout)
-    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
-        # Heads from the half-resolution decoder output (exactly equal, see networks.py).
-        half = model.half_features(x)
-    # The head in float32 (oneDNN, ~0.7 ms): bf16 outputs would round scores to 8
-    # mantissa bits (0.125 N at 30 N) and let rounding decide near-ties.
-    half = half.float()
-    score_n, validness_logit = model.score_and_validness_from_half(half)
+    half, score_n, validness_logit = _network_outputs(model, grid, options.precision)
+    if score_model is not None:
+        _, score_n, _ = _network_outputs(score_model, grid, options.precision)
     validness = torch.sigmoid(validness_logit[0])
     score_n = score_n[0] if options.has_score else None
     rank_key = score_n * validness if options.rank_by == "expected_score" else None
@@ -274,6 +270,22 @@ def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), option
         options,
         rank_key,
     )
+
+
+def _network_outputs(model, grid, precision):
+    """(half-resolution features, score_n, validness logit) of `model` on the (R, R, R) grid."""
+    precision = resolve_precision(precision)
+    check_grid(grid, model.resolution)
+    layout = _prepare(model, precision)
+    x = grid[None, None].contiguous(memory_format=layout)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+        # Heads from the half-resolution decoder output (exactly equal, see networks.py).
+        half = model.half_features(x)
+    # The head in float32 (oneDNN, ~0.7 ms): bf16 outputs would round scores to 8
+    # mantissa bits (0.125 N at 30 N) and let rounding decide near-ties.
+    half = half.float()
+    score_n, validness_logit = model.score_and_validness_from_half(half)
+    return half, score_n, validness_logit
 
 
 def surface_voxel_centres(grid, voxel_size_m, origin=(0.0, 0.0, 0.0)):

@@ -54,6 +54,12 @@ METHODS = {m.name: m for m in (
     gravgrasp.model_method("ours_told", "gravgrasp.pt", "Ours told the mass: by validness, grasps scored "
                            ">= what executed grasps needed to hold it first", told_payload=True,
                            payload_rule="preferred", file_of="ours"),
+    # Binary places, Ours ranks: Binary's grasps of validness >= 0.9 (its picks' median is
+    # 0.97) ranked by Ours' score at the same voxels. Ours' before-the-lift losses are picks
+    # Binary would not make (doc/before-lift-diagnosis.md), its after-the-lift gain is the
+    # score (doc/results.md). Only Binary's file names its rounds (Method.companions).
+    gravgrasp.model_method("binary_scored", "gravgrasp_binary.pt", "Binary's grasps of validness >= 0.9, "
+                           "ranked by Ours' score", validness_floor=0.9, file_of="binary", score_file="gravgrasp.pt"),
     # the baselines, with their published weights, on the hand they were made for
     Method("vgn", "panda", vgn.make_detector, vgn.MODEL_FILE, BASELINES,
            "VGN (Breyer et al. 2020), published weights, Panda hand"),

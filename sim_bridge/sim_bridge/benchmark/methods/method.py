@@ -78,7 +78,8 @@ class Method:
         missing = [str(path.parent / pathlib.PurePosixPath(c).name) for c in self.companions
                    if not (path.parent / pathlib.PurePosixPath(c).name).is_file()]
         if missing:
-            source = baseline_files.SOURCES.get(pathlib.PurePosixPath(self.file).parts[0], "where its file came from")
+            source = (baseline_files.SOURCES.get(pathlib.PurePosixPath(self.file).parts[0], "where its file came from")
+                      if self.where == BASELINES else "models/, which ships it, or pass --model with a directory that has it")
             raise MethodFileMissing(f"{', '.join(missing)} not found beside {path.name}: get "
                                     f"{'them' if len(missing) > 1 else 'it'} from {source}")
         return path.resolve()
