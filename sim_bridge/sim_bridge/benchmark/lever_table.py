@@ -9,8 +9,8 @@ each weight over the same scenes (a lever can raise SR by attempting less); and 
 the issue's three targets it meets there. A lever whose run is not there yet says so.
 `--decisive` prints the same columns for the decisive runs instead, of the chosen lever and
 of the shipped Ours: 32 scenes on each tuning set, their 16 new scenes alone (the ones no
-choice saw), and (the lever) the unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both outputs
-(tests/sim_bridge/test_lever_table.py).
+choice saw), and the unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both
+outputs (tests/sim_bridge/test_lever_table.py).
 """
 
 from __future__ import annotations

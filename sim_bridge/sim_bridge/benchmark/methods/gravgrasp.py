@@ -42,7 +42,7 @@ def make_detect(model, metadata, protocol, rank_by=None, validness_floor=0.0, fr
         scorer, score_metadata = score_model
         if not has_score(score_metadata):
             raise ValueError("the score model has no gravity-rejection score (trained with --target binary)")
-        metadata, rank_by = score_metadata, rank_by or "score"
+        metadata = score_metadata  # its score ranks: model_file.ranking says "score"
     if payload_rule not in PAYLOAD_RULES:
         raise ValueError(f"payload_rule {payload_rule!r}: use one of {PAYLOAD_RULES}")
     if payload_kg is not None:
