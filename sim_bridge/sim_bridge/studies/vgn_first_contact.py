@@ -2,7 +2,7 @@
 does VGN pick such a grasp? (issue 41: the first vgn rounds on the held-out scenes)
 
 `first_view`: a round's first view rebuilt from its committed scene, protocol and model
-file (as studies.free_space_mask_first_view does; the pick is trusted only when it equals
+file (as studies.first_view_picks does; the pick is trusted only when it equals
 the recorded attempt 1 to 2e-6). For that pick it prints where the TCP sits against the
 true surface, which hand part meets which object first along the approach (the hand's
 true convex hulls, panda_hand.open_hand_hulls_tcp, against object surface samples:

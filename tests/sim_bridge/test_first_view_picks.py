@@ -1,7 +1,7 @@
-"""studies.free_space_mask_first_view without a simulation: the report's counts by the
+"""studies.first_view_picks without a simulation: the report's counts by the
 first attempt's outcome, and which first picks each mask takes away."""
 
-from sim_bridge.studies import free_space_mask_first_view as mfv
+from sim_bridge.studies import first_view_picks as mfv
 
 
 def pick(same, contact=None, validness=0.95):
@@ -26,6 +26,9 @@ def test_report_counts_the_first_picks_each_mask_takes_away():
                record("e", "success", None, None, same_pose=False)]  # did not repeat: left out
     lines = mfv.report_lines(records)
     assert lines[0] == "heldout_v4 ours: 5 rounds, 4 first views repeated"
+    # c's recorded pick met the box; tcp's other pick in a met it, d had none feasible
+    assert lines[1] == ("- first picks whose approach meets something: ours (recorded) 1 of 4; "
+                        "tcp 1 of 3 (none feasible 1); finger_base 0 of 4")
     success = lines.index("- first attempt success (2): TCP inside 2, band 0, free 0, unobserved 0; "
                           "approach meets something 0")
     assert lines[success + 1].startswith("  - mask tcp: drops the pick 1 (another pick 1, of which approach "
@@ -38,3 +41,20 @@ def test_report_counts_the_first_picks_each_mask_takes_away():
     assert ("- heldout_v4 ours 1.5 kg c: jammed_on_approach, TCP inside, validness 0.70, meets box; tcp: another "
             "(band, validness 0.95, clear); finger_base: another (band, validness 0.97, clear)") in lines
     assert lines[-1] == "CPU per round: mean 2.0 s, total 10 s (5 rounds)"
+
+
+def test_report_names_method_selections_without_mask():
+    r = record("a", "jammed_on_approach", None, None, contact=BOX)
+    r["detected"] = {"binary_scored": 12}
+    r["diagnosis"]["compare"] = {"binary_scored": pick(False, BOX, validness=0.93)}
+    lines = mfv.report_lines([r])
+    assert any(line.startswith("  - binary_scored: drops the pick 1 (another pick 1, of which approach meets "
+                               "something 1, validness median 0.93") for line in lines)
+    assert lines[-2].endswith("binary_scored: another (band, validness 0.93, meets something)")
+
+
+def test_unknown_selection_is_refused_before_any_round():
+    import pytest
+    with pytest.raises(ValueError, match="--compare 'vgn'"):
+        mfv.check_selections(["tcp", "vgn"])
+    mfv.check_selections(["tcp", "finger_base", "binary_scored"])  # the shipped files are there

@@ -1,5 +1,6 @@
-"""What would VGN's mask (detection's `free_space_mask`, issue 42's selection lever) have
-done to the first pick of committed benchmark rounds?
+"""What would another selection have picked in the first view of committed benchmark
+rounds, and would its approach meet something? A screen for issue 42's selection levers
+before they cost benchmark rounds.
 
 A round's first view needs no replay of attempts: the scene settles and the detector sees
 it once. So, cheaply (seconds a round), each round's first view is rebuilt from its
@@ -7,16 +8,22 @@ committed scene, protocol and model file (sha256 checked), and its recorded firs
 (attempt 1: the grasp at its recorded rank, trusted only when the replayed pose equals the
 recorded one to 2e-6) is diagnosed as before_lift_diagnosis does (benchmark.pick_diagnosis:
 where its TCP sat, whether VGN's mask keeps it at the TCP and where VGN's TCP would sit,
-what its approach meets), beside the first feasible pick of the same model with each mask
-(`FREE_SPACE_MASKS` but "off"): the same pick or another, where it sits, whether its
-approach meets a true object or the table before the grasp pose.
+what its approach meets), beside the first feasible pick of each `--compare` selection in
+the same view: the same pick or another, where it sits, whether its approach meets a true
+object or the table before the grasp pose. A selection is one of VGN's masks
+(`FREE_SPACE_MASKS` but "off", on the round's own model: the default) or a method of the
+project's models (`binary_scored`, `ours`, ...: its own model file).
 
 The first pick is all it sees: a failure later in a round happened in a view this does
-not rebuild (before_lift_diagnosis replays those, at ~2 CPU-min a round).
+not rebuild (before_lift_diagnosis replays those, at ~2 CPU-min a round), and "meets
+something" is geometry, the open hand's bounding boxes against the true surfaces, not the
+arm's 60 N contact stop: a pick that meets something may still be executed.
 
-    python -m sim_bridge.studies.free_space_mask_first_view --results sim_bridge/results/heldout_v4 \\
+    python -m sim_bridge.studies.first_view_picks --results sim_bridge/results/heldout_v4 \\
         --weights 0.1,0.5,1.5 --out sim_bridge/results/free_space_mask_first_view   # and --method binary
-    python -m sim_bridge.studies.free_space_mask_first_view --out sim_bridge/results/free_space_mask_first_view --report
+    python -m sim_bridge.studies.first_view_picks --results sim_bridge/results/heldout_v4_decisive \\
+        --method binary --weights 1.5 --compare binary_scored,ours --out sim_bridge/results/first_view_binary_scored
+    python -m sim_bridge.studies.first_view_picks --out sim_bridge/results/free_space_mask_first_view --report
 
 One JSON per round under --out/rounds/<results>/<method>/<kg>/<scene>.json (a rerun skips
 those there); --report prints the counts by the first attempt's outcome.
@@ -47,8 +54,34 @@ from .before_lift_diagnosis import FAILURES, diagnose_view, round_files
 MASKS = tuple(m for m in FREE_SPACE_MASKS if m != "off")
 
 
-def first_view(results_dir, method, mass_kg, scene_id, model_path) -> dict:
-    """The record of one round's first view (module doc)."""
+def selections(names, model_path, protocol) -> dict:
+    """{name: detect} of each selection (module doc): a mask on `model_path`, or a method's
+    detector on its own model file."""
+    out = {}
+    for name in names:
+        if name in MASKS:
+            out[name] = gravgrasp.make_detector(model_path, protocol, free_space_mask=name).detect
+        else:
+            out[name] = METHODS[name].make(METHODS[name].default_path(), protocol).detect
+    return out
+
+
+def check_selections(names) -> None:
+    """ValueError naming what is wrong with a --compare list, before any round runs."""
+    for name in names:
+        if name in MASKS:
+            continue
+        if name not in METHODS or METHODS[name].hand != "2f85":
+            raise ValueError(f"--compare {name!r}: use a mask ({', '.join(MASKS)}) or a method of the "
+                             f"project's models (e.g. ours, binary_scored)")
+        method = METHODS[name]
+        for f in (method.default_path(), *(method.default_path().parent / c for c in method.companions)):
+            if not f.is_file():
+                raise ValueError(f"--compare {name}: model file {f} not found")
+
+
+def first_view(results_dir, method, mass_kg, scene_id, model_path, compare=MASKS) -> dict:
+    """The record of one round's first view (module doc); compare: the selections' names."""
     t0 = time.process_time()
     results_dir = pathlib.Path(results_dir)
     recorded = recorded_round(results_dir, method, mass_kg, scene_id)
@@ -58,7 +91,7 @@ def first_view(results_dir, method, mass_kg, scene_id, model_path) -> dict:
     first = recorded["attempts"][0]
     out.update(outcome=outcome_class(first), validness=first["validness"], rank=first["rank"])
     cell, protocol = rebuild_cell(results_dir, recorded, model_path)
-    masked = {mask: gravgrasp.make_detector(model_path, protocol, free_space_mask=mask).detect for mask in MASKS}
+    masked = selections(compare, model_path, protocol)
     cell.settle()
     cell.remove_fallen()
     tsdf, grasps = cell.detect()
@@ -86,6 +119,29 @@ def _pick_words(pick) -> str:
     return f"another ({pick['tcp_class']}, validness {pick['validness']:.2f}, {meets})"
 
 
+def _selections(records) -> list:
+    """The selections compared in these records: the masks in MASKS' order, then methods."""
+    names = {m for r in records for m in r.get("detected", {})}
+    return [m for m in MASKS if m in names] + sorted(names - set(MASKS))
+
+
+def _label(name) -> str:
+    return f"mask {name}" if name in MASKS else name
+
+
+def _meets_line(method, records) -> str:
+    """How many first picks of the recorded method and of each selection meet something on
+    the approach: the screen's figure (a "same" pick meets what the recorded one met)."""
+    d = [r["diagnosis"] for r in records]
+    words = [f"{method} (recorded) {sum(x['first_contact'] is not None for x in d)} of {len(d)}"]
+    for name in _selections(records):
+        picks = [(x, x["compare"][name]) for x in d]
+        meets = sum((x if p["same"] else p)["first_contact"] is not None for x, p in picks if p is not None)
+        none = sum(p is None for _, p in picks)
+        words.append(f"{name} {meets} of {len(d) - none}" + (f" (none feasible {none})" if none else ""))
+    return "- first picks whose approach meets something: " + "; ".join(words)
+
+
 def report_lines(records: list) -> list:
     """Counts by the first attempt's outcome (success, failed before the lift, after it)."""
     lines = []
@@ -94,6 +150,7 @@ def report_lines(records: list) -> list:
         ours = [r for r in records if (r["results"], r["method"]) == (results, method)]
         lines.append(f"{results} {method}: {sum(r['outcome'] is not None for r in ours)} rounds, "
                      f"{sum(bool(r.get('same_pose')) for r in ours)} first views repeated")
+        lines.append(_meets_line(method, [r for r in ours if r.get("same_pose")]))
         by = collections.defaultdict(list)
         for r in ours:
             if r.get("same_pose"):
@@ -107,12 +164,12 @@ def report_lines(records: list) -> list:
             lines.append(f"- first attempt {group} ({len(rs)}): TCP " + ", ".join(
                 f"{c} {classes[c]}" for c in pick_diagnosis.SURFACE_CLASSES)
                 + f"; approach meets something {sum(x['first_contact'] is not None for x in d)}")
-            for mask in MASKS:
+            for mask in _selections(rs):
                 picks = [x["compare"][mask] for x in d]
                 none = sum(p is None for p in picks)
                 same = sum(p is not None and p["same"] for p in picks)
                 other = [p for p in picks if p is not None and not p["same"]]
-                lines.append(f"  - mask {mask}: drops the pick {len(rs) - same}"
+                lines.append(f"  - {_label(mask)}: drops the pick {len(rs) - same}"
                              f" (another pick {len(other)}, of which approach meets something "
                              f"{sum(p['first_contact'] is not None for p in other)}, validness median "
                              f"{np.median([p['validness'] for p in other]) if other else float('nan'):.2f}; "
@@ -121,10 +178,10 @@ def report_lines(records: list) -> list:
     failed = sorted((r for r in seen if _group(r) == "before the lift"),
                     key=lambda r: (r["results"], r["method"], r["mass_kg"], r["scene_id"]))
     if failed:
-        lines.append("first picks that failed before the lift (its approach's first contact; each mask's pick):")
+        lines.append("first picks that failed before the lift (its approach's first contact; each selection's pick):")
     for r in failed:
         d = r["diagnosis"]
-        picks = "; ".join(f"{m}: {_pick_words(d['compare'][m])}" for m in MASKS)
+        picks = "; ".join(f"{m}: {_pick_words(d['compare'][m])}" for m in _selections([r]))
         contact = d["first_contact"]
         lines.append(f"- {r['results']} {r['method']} {r['mass_kg']} kg {r['scene_id']}: {r['outcome']}, "
                      f"TCP {d['tcp_class']}, "
@@ -143,6 +200,8 @@ def main(argv=None) -> int:
     p.add_argument("--method", default="ours", help="a method of the project's models (its rounds are read)")
     p.add_argument("--weights", default="0.1,0.5,1.5", help="kg, comma-separated")
     p.add_argument("--model", help="the file the method's rounds ran (default: the method's)")
+    p.add_argument("--compare", default=",".join(MASKS), help="selections to pick in the same view, comma-separated: "
+                   "masks (" + ", ".join(MASKS) + ", on the rounds' model) or methods of the project's models")
     p.add_argument("--out", required=True)
     p.add_argument("--report", action="store_true", help="print the counts of what --out holds, run nothing")
     args = p.parse_args(argv)
@@ -150,7 +209,7 @@ def main(argv=None) -> int:
     if args.report:
         records = [json.loads(f.read_text()) for f in sorted((out / "rounds").rglob("*.json"))]
         if not records:
-            print(f"free_space_mask_first_view: nothing under {out / 'rounds'}: run without --report first",
+            print(f"first_view_picks: nothing under {out / 'rounds'}: run without --report first",
                   file=sys.stderr)
             return 2
         print("\n".join(report_lines(records)))
@@ -158,6 +217,8 @@ def main(argv=None) -> int:
     try:
         if args.method not in METHODS or METHODS[args.method].hand != "2f85":
             raise ValueError(f"--method {args.method!r}: use a method of the project's models (e.g. ours, binary)")
+        compare = tuple(c for c in args.compare.split(",") if c)
+        check_selections(compare)
         model = pathlib.Path(args.model) if args.model else METHODS[args.method].default_path()
         if not model.is_file():
             raise ValueError(f"model file {model} not found: pass --model PATH")
@@ -166,12 +227,12 @@ def main(argv=None) -> int:
                 target = out / "rounds" / pathlib.Path(results).name / method / weight_key(kg) / f.name
                 if target.is_file():
                     continue
-                record = first_view(results, method, kg, f.stem, model)
+                record = first_view(results, method, kg, f.stem, model, compare)
                 atomic_files.save_json(target, record)
                 print(f"{target}: first attempt {record['outcome']}, repeated {record.get('same_pose')}, "
                       f"{record['cpu_s']} s CPU", flush=True)
     except ValueError as e:
-        print(f"free_space_mask_first_view: {e}", file=sys.stderr)
+        print(f"first_view_picks: {e}", file=sys.stderr)
         return 2
     return 0
 
