@@ -28,7 +28,7 @@ help:
 	@echo "make lever-clearance - issue 42's training lever: Ours retrained with the executor's clearance at label time, 16-scene lever runs (~3.5 h; pinned, background, resumable)"
 	@echo "make lever-guarded - issue 42's execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
 	@echo "make lever-selection METHOD=ours_precision_sure - issue 42's selection levers: one registered method beside the committed Ours, Binary, Ours-Precision rounds (~80 min; pinned, background, resumable)"
-	@echo "make lever-decisive METHOD=... [PRODUCT=ours] - issue 42's decisive runs of the chosen lever: 32 scenes on both tuning sets, then PRODUCT (default METHOD) there at 0.1-4 kg and on procedural seed 2000 once (~14 h; pinned, background, resumable)"
+	@echo "make lever-decisive METHOD=... [PRODUCT=ours] [SCREEN=binary_scored] - issue 42's decisive runs of the chosen lever: 32 scenes on both tuning sets, then PRODUCT (default METHOD) there at 0.1-4 kg and on procedural seed 2000 once, SCREEN at 0.1/1.5 kg on the same 32 scenes (~14 h; pinned, background, resumable)"
 	@echo "make baselines-figure - SR/CR vs weight of every method, held-out and procedural side by side, and the table, from the rounds so far"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
@@ -143,7 +143,7 @@ lever-guarded: setup
 lever-selection: setup
 	@$(call pinned_chain,out/lever_$(METHOD).log,selection_lever_chain.sh $(METHOD))
 lever-decisive: setup
-	@$(call pinned_chain,out/decisive_$(METHOD).log,decisive_chain.sh $(METHOD) $(PRODUCT))
+	@export SCREEN="$(SCREEN)"; $(call pinned_chain,out/decisive_$(METHOD).log,decisive_chain.sh $(METHOD) $(PRODUCT))
 
 # Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
 # cheaper label settings (make label-settings-study), the held-out meshes left out.

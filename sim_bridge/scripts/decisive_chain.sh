@@ -12,23 +12,27 @@
 #   levers.md says which), on the same 32 scenes:
 #   2. PRODUCT at 0.1 and 1.5 kg (nothing new when it is METHOD)
 #   3. the seed-2000 confirmation: PRODUCT and Binary at 0.1 and 1.5 kg
+#   3b. with SCREEN (methods, comma-separated), the next lever screened where Binary's 32 scenes
+#      are: SCREEN at 0.1 and 1.5 kg, held-out then procedural (levers.md's rule: screen on 32
+#      scenes of both sets, decide on ~100); its rows then stay in every report
 #   4. PRODUCT and Binary at 4 kg, Ours-Precision at 1.5 and 4 kg
 #   5. PRODUCT at 0.5 kg on the first 16 scenes (Binary's, Ours' and Ours-Precision's are copied)
 #   6. METHOD on seed 2000, when it is not PRODUCT: the unbiased estimate of a lever not adopted
 #      (it was step 2 until the lever failed step 1; its first rounds are kept)
 # ~1.4 min a round on 2 cores, ~12 h in all: one line per session resumes it
-# (`make lever-decisive METHOD=... [PRODUCT=...] PIN=<the commit it started on>`):
+# (`make lever-decisive METHOD=... [PRODUCT=...] [SCREEN=...] PIN=<the commit it started on>`):
 #   ros_ws/run_pinned.sh COMMIT out/decisive_METHOD.log -- out/pinned/<COMMIT:12>/sim_bridge/scripts/decisive_chain.sh METHOD [PRODUCT]
 # Commit the rounds as they come: git add sim_bridge/results/*_decisive sim_bridge/results/procedural_s2000_confirm
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 1 ] || [ $# -eq 2 ] || { echo "usage: sim_bridge/scripts/decisive_chain.sh METHOD [PRODUCT] (the chosen lever, e.g. ours_sure; the method steps 2-5 run, default METHOD; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 1 ] || [ $# -eq 2 ] || { echo "usage: sim_bridge/scripts/decisive_chain.sh METHOD [PRODUCT] (the chosen lever, e.g. ours_sure; the method steps 2-5 run, default METHOD; WORKERS=2 MESHES=DIR SCREEN=METHODS)" >&2; exit 2; }
 method="$1"
 product="${2:-$1}"
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
 heldout=(--meshes "$meshes" --only models/vgn_heldout_meshes.txt)
-everyone="ours,binary,ours_precision,$method"
+screen="${SCREEN:-}"
+everyone="ours,binary,ours_precision,$method${screen:+,$screen}"
 
 copy() {  # copy SOURCE OUT METHODS: SOURCE's scenes and the rounds of METHODS into OUT
   [ -d "sim_bridge/results/$1" ] || return 0
@@ -71,6 +75,12 @@ report heldout_v4_decisive "$chosen,binary" 0.1,1.5 "${heldout[@]}"
 report procedural_v4_decisive "$chosen,binary" 0.1,1.5
 bench procedural_s2000_confirm 32 0.1,1.5 "$product,binary" --procedural-seed 2000
 report procedural_s2000_confirm "$product,binary" 0.1,1.5 --procedural-seed 2000  # not METHOD's few rounds yet
+if [ -n "$screen" ]; then
+  bench heldout_v4_decisive 32 0.1,1.5 "$screen" "${heldout[@]}"
+  bench procedural_v4_decisive 32 0.1,1.5 "$screen"
+  report heldout_v4_decisive "$chosen,$screen,binary" 0.1,1.5 "${heldout[@]}"
+  report procedural_v4_decisive "$chosen,$screen,binary" 0.1,1.5
+fi
 bench heldout_v4_decisive 32 4.0 "$product,binary" "${heldout[@]}"
 bench heldout_v4_decisive 32 1.5,4.0 ours_precision "${heldout[@]}"
 bench procedural_v4_decisive 32 4.0 "$product,binary"

@@ -48,6 +48,10 @@ LEVERS = (
      {HELDOUT: "heldout_v4_clearance", PROCEDURAL: "procedural_v4_clearance"}),
     ("guarded approach, 10 mm", "execution", "execute `close_on_contact_within_m:=0.01`", "ours",
      {HELDOUT: "heldout_v4_guarded_approach"}),  # procedural half not run: no effect held-out (levers.md)
+    # screened on the decisive runs' 32 scenes (decisive_chain.sh SCREEN), not on 16
+    ("Binary places, Ours ranks: Binary's grasps of validness ≥ 0.9 by Ours' score", "selection",
+     "benchmark method `binary_scored` (no node parameter yet)", "binary_scored",
+     {HELDOUT: "heldout_v4_decisive", PROCEDURAL: "procedural_v4_decisive"}),
 )
 # The decisive runs (scripts/decisive_chain.sh) of the lever the rule in levers.md chose and
 # of the product that ships (the shipped Ours: the lever was not adopted), each
