@@ -131,13 +131,14 @@ def _label(name) -> str:
 
 def _meets_line(method, records) -> str:
     """How many first picks of the recorded method and of each selection meet something on
-    the approach: the screen's figure (a "same" pick meets what the recorded one met)."""
+    the approach: the screen's figure (each pick's own approach, a "same" one's too: "same"
+    allows pick_diagnosis.SAME_PICK_M and _DEG)."""
     d = [r["diagnosis"] for r in records]
     words = [f"{method} (recorded) {sum(x['first_contact'] is not None for x in d)} of {len(d)}"]
     for name in _selections(records):
-        picks = [(x, x["compare"][name]) for x in d]
-        meets = sum((x if p["same"] else p)["first_contact"] is not None for x, p in picks if p is not None)
-        none = sum(p is None for _, p in picks)
+        picks = [x["compare"][name] for x in d]
+        meets = sum(p["first_contact"] is not None for p in picks if p is not None)
+        none = sum(p is None for p in picks)
         words.append(f"{name} {meets} of {len(d) - none}" + (f" (none feasible {none})" if none else ""))
     return "- first picks whose approach meets something: " + "; ".join(words)
 
