@@ -40,6 +40,9 @@ def test_report_counts_the_first_picks_each_mask_takes_away():
     assert "mask finger_base: drops the pick 1 (another pick 1" in lines[failed + 2]
     assert ("- heldout_v4 ours 1.5 kg c: jammed_on_approach, TCP inside, validness 0.70, meets box; tcp: another "
             "(band, validness 0.95, clear); finger_base: another (band, validness 0.97, clear)") in lines
+    # of the 4 repeated first picks c met the box and failed; d met nothing and failed
+    assert lines[-2] == ("recorded first picks that failed before the lift: meeting something 1 of 1 (100 %), "
+                         "meeting nothing 1 of 3 (33 %)")
     assert lines[-1] == "CPU per round: mean 2.0 s, total 10 s (5 rounds)"
 
 
@@ -50,7 +53,7 @@ def test_report_names_method_selections_without_mask():
     lines = mfv.report_lines([r])
     assert any(line.startswith("  - binary_scored: drops the pick 1 (another pick 1, of which approach meets "
                                "something 1, validness median 0.93") for line in lines)
-    assert lines[-2].endswith("binary_scored: another (band, validness 0.93, meets something)")
+    assert lines[-3].endswith("binary_scored: another (band, validness 0.93, meets something)")
 
 
 def test_unknown_selection_is_refused_before_any_round():

@@ -143,6 +143,18 @@ def _meets_line(method, records) -> str:
     return "- first picks whose approach meets something: " + "; ".join(words)
 
 
+def _risk_line(seen) -> str:
+    """What meeting something meant for the recorded first picks: how many failed before the
+    lift among those that met something and those that did not."""
+    words = []
+    for meets in (True, False):
+        rs = [r for r in seen if (r["diagnosis"]["first_contact"] is not None) == meets]
+        failed = sum(_group(r) == "before the lift" for r in rs)
+        share = f" ({100 * failed / len(rs):.0f} %)" if rs else ""
+        words.append(f"{'meeting something' if meets else 'meeting nothing'} {failed} of {len(rs)}{share}")
+    return "recorded first picks that failed before the lift: " + ", ".join(words)
+
+
 def report_lines(records: list) -> list:
     """Counts by the first attempt's outcome (success, failed before the lift, after it)."""
     lines = []
@@ -187,6 +199,7 @@ def report_lines(records: list) -> list:
         lines.append(f"- {r['results']} {r['method']} {r['mass_kg']} kg {r['scene_id']}: {r['outcome']}, "
                      f"TCP {d['tcp_class']}, "
                      f"validness {r['validness']:.2f}, meets {contact['what'] if contact else 'nothing'}; {picks}")
+    lines.append(_risk_line(seen))
     cpu = [r["cpu_s"] for r in records if r.get("same_pose") is not None]
     if cpu:
         lines.append(f"CPU per round: mean {np.mean(cpu):.1f} s, total {sum(cpu):.0f} s ({len(cpu)} rounds)")
