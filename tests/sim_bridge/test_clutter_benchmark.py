@@ -412,7 +412,7 @@ def test_binary_scored_takes_binarys_sure_grasps_ranked_by_ours_score(tmp_path):
     pose_at = {tuple(g.voxel_index): g.pose for g in placed}
     assert all(np.allclose(g.pose, pose_at[tuple(g.voxel_index)]) for g in scored if tuple(g.voxel_index) in pose_at)
     save_test_model(tmp_path / "gravgrasp.pt", target="binary")
-    with pytest.raises(ValueError, match="no gravity-rejection score"):
+    with pytest.raises(model_file.ModelFileError, match="no gravity-rejection score"):
         method.make(str(binary), p)
 
 

@@ -182,6 +182,25 @@ def load_model(path):
     return model.eval(), metadata
 
 
+def load_score_model(path, placing_metadata):
+    """-> (model, metadata) of a score model that ranks another model's grasps
+    (detection.detect_grasps' score_model): one with a gravity-rejection score, on the same
+    TSDF as the model that places them (`placing_metadata`). Raises ModelFileError."""
+    model, metadata = load_model(path)
+    if not has_score(metadata):
+        raise ModelFileError(f"score model {os.path.abspath(os.fspath(path))} was trained with --target binary: "
+                             "it has no gravity-rejection score to rank by; give a score model (models/gravgrasp.pt)")
+    theirs, ours = metadata["tsdf"], placing_metadata["tsdf"]
+    differ = [f"{k} {theirs.get(k)} (placing model: {ours.get(k)})"
+              for k in ("resolution", "voxel_size_m", "truncation_m", "convention")
+              if (abs(theirs.get(k) - ours.get(k)) > 1e-9 if k in ("voxel_size_m", "truncation_m")
+                  else theirs.get(k) != ours.get(k))]
+    if differ:
+        raise ModelFileError(f"score model {os.path.abspath(os.fspath(path))} reads another TSDF than the model "
+                             f"that places the grasps: {', '.join(differ)}; give one trained on the same volume")
+    return model, metadata
+
+
 def check_volume(metadata, resolution, voxel_size_m, truncation_m, convention=tsdf.TSDF_CONVENTION):
     """Raise ModelFileError unless a volume of this geometry is what the model was trained on."""
     expected = metadata["tsdf"]

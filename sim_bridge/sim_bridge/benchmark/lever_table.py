@@ -50,7 +50,8 @@ LEVERS = (
      {HELDOUT: "heldout_v4_guarded_approach"}),  # procedural half not run: no effect held-out (levers.md)
     # screened on the decisive runs' 32 scenes (decisive_chain.sh SCREEN), not on 16
     ("Binary places, Ours ranks: Binary's grasps of validness ≥ 0.9 by Ours' score", "selection",
-     "benchmark method `binary_scored` (no node parameter yet)", "binary_scored",
+     "detect `model_path:=gravgrasp_binary.pt score_model_path:=gravgrasp.pt validness_threshold:=0.9`",
+     "binary_scored",
      {HELDOUT: "heldout_v4_decisive", PROCEDURAL: "procedural_v4_decisive"}),
 )
 # The decisive runs (scripts/decisive_chain.sh) of the lever the rule in levers.md chose and

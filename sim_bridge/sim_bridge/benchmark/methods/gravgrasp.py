@@ -20,7 +20,8 @@ import numpy as np
 
 from gravgrasp_detector.perception.detection import (DetectionOptions, detect_grasps, held_payload_score_n,
                                                      payload_min_score_n)
-from gravgrasp_detector.perception.model_file import check_volume, has_score, load_model, ranking, training_target
+from gravgrasp_detector.perception.model_file import (check_volume, has_score, load_model, load_score_model, ranking,
+                                                     training_target)
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 
 from .method import Detector, Method
@@ -75,10 +76,7 @@ def make_detector(path, protocol, rank_by=None, validness_floor=0.0, free_space_
     model, metadata = load_model(path)
     volume = TSDFVolume(size_m=metadata["tsdf"]["size_m"], resolution=metadata["tsdf"]["resolution"])
     check_volume(metadata, volume.resolution, volume.voxel_size_m, volume.truncation_m)
-    score_model = None
-    if score_file:
-        score_model = load_model(pathlib.Path(path).parent / score_file)
-        check_volume(score_model[1], volume.resolution, volume.voxel_size_m, volume.truncation_m)
+    score_model = load_score_model(pathlib.Path(path).parent / score_file, metadata) if score_file else None
     detect = make_detect(model, metadata, protocol, rank_by, validness_floor, free_space_mask, payload_kg,
                          payload_rule, score_model)
     return Detector(detect, volume, training_target(score_model[1] if score_model else metadata))
