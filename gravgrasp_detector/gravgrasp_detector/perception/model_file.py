@@ -190,11 +190,15 @@ def load_score_model(path, placing_metadata):
     if not has_score(metadata):
         raise ModelFileError(f"score model {os.path.abspath(os.fspath(path))} was trained with --target binary: "
                              "it has no gravity-rejection score to rank by; give a score model (models/gravgrasp.pt)")
-    theirs, ours = metadata["tsdf"], placing_metadata["tsdf"]
-    differ = [f"{k} {theirs.get(k)} (placing model: {ours.get(k)})"
-              for k in ("resolution", "voxel_size_m", "truncation_m", "convention")
-              if (abs(theirs.get(k) - ours.get(k)) > 1e-9 if k in ("voxel_size_m", "truncation_m")
-                  else theirs.get(k) != ours.get(k))]
+    scoring, placing = metadata["tsdf"], placing_metadata["tsdf"]
+
+    def same(key):
+        if key in ("voxel_size_m", "truncation_m"):
+            return abs(scoring[key] - placing[key]) <= 1e-9
+        return scoring.get(key) == placing.get(key)
+
+    differ = [f"{k} {scoring.get(k)} (placing model: {placing.get(k)})"
+              for k in ("resolution", "voxel_size_m", "truncation_m", "convention") if not same(k)]
     if differ:
         raise ModelFileError(f"score model {os.path.abspath(os.fspath(path))} reads another TSDF than the model "
                              f"that places the grasps: {', '.join(differ)}; give one trained on the same volume")

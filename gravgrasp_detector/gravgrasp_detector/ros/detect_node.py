@@ -157,8 +157,8 @@ class DetectNode(Node):
         self.model_name = os.path.basename(self.model_path)
         self.score_model, ranked_by = None, self.metadata
         if score_model_path:
-            self.score_model_path = resolve_model_path(score_model_path)
-            self.score_model, ranked_by = model_file.load_score_model(self.score_model_path, self.metadata)
+            self.score_model, ranked_by = model_file.load_score_model(resolve_model_path(score_model_path),
+                                                                      self.metadata)
         # A binary model (trained with --target binary) is ranked by its validness, a
         # success probability; its score head is untrained, so its grasps carry
         # gravity_rejection_score NaN (no newtons), never a probability in its place.
@@ -179,7 +179,7 @@ class DetectNode(Node):
         self._worker = threading.Thread(target=self._run, name="detect", daemon=True)
         self._worker.start()
         for line in startup_lines(self.model_path, self.metadata, self.precision, threads, self.rank_by,
-                                  score_model_path if score_model_path else None):
+                                  score_model_path or None):
             self.get_logger().info(line)
 
     def _on_volume(self, msg):
