@@ -91,7 +91,7 @@ def first_view(results_dir, method, mass_kg, scene_id, model_path, compare=MASKS
     first = recorded["attempts"][0]
     out.update(outcome=outcome_class(first), validness=first["validness"], rank=first["rank"])
     cell, protocol = rebuild_cell(results_dir, recorded, model_path)
-    masked = selections(compare, model_path, protocol)
+    compared = selections(compare, model_path, protocol)
     cell.settle()
     cell.remove_fallen()
     tsdf, grasps = cell.detect()
@@ -100,8 +100,8 @@ def first_view(results_dir, method, mass_kg, scene_id, model_path, compare=MASKS
     if rank >= len(grasps) or not np.allclose(grasps[rank].pose, first["pose"], atol=2e-6):
         return {**out, "same_pose": False, "cpu_s": round(time.process_time() - t0, 1)}
     state = (tsdf, grasps, view, SurfaceSamples(cell.world, pick_diagnosis.sample_surface).now())
-    d = diagnose_view(cell, state, grasps[rank], masked)
-    return {**out, "same_pose": True, "diagnosis": d, "detected": {m: len(f(tsdf)) for m, f in masked.items()},
+    d = diagnose_view(cell, state, grasps[rank], compared)
+    return {**out, "same_pose": True, "diagnosis": d, "detected": {m: len(f(tsdf)) for m, f in compared.items()},
             "cpu_s": round(time.process_time() - t0, 1)}
 
 
