@@ -20,7 +20,24 @@ def test_the_doc_holds_what_the_command_prints(tag, lines, command):
     text = (ROOT / "sim_bridge/doc/levers.md").read_text()
     m = re.search(rf"<!-- {tag}: [^>]*-->\n(.*?)\n<!-- /{tag} -->", text, re.S)
     assert m, f"levers.md has no <!-- {tag} --> block"
-    assert m.group(1).split("\n") == lines(ROOT), f"levers.md's {tag} differs: paste `{command}` into it"
+    assert m.group(1).split("\n") == lines(ROOT), (f"levers.md's {tag} differs: run "
+                                                    "`python -m sim_bridge.benchmark.lever_table --write`")
+
+
+def test_write_rewrites_only_the_generated_blocks(tmp_path, monkeypatch):
+    doc = tmp_path / lever_table.DOC
+    doc.parent.mkdir(parents=True)
+    doc.write_text("intro\n<!-- lever-table: cmd -->\nold\n<!-- /lever-table -->\nmiddle\n"
+                   "<!-- decisive-table: cmd -->\nold\n<!-- /decisive-table -->\nend\n")
+    monkeypatch.setattr(lever_table, "BLOCKS", (("lever-table", lambda root: ["| a |", "| b |"]),
+                                                ("decisive-table", lambda root: ["old"])))
+    assert lever_table.write_doc(tmp_path) == ["lever-table"]
+    assert doc.read_text() == ("intro\n<!-- lever-table: cmd -->\n| a |\n| b |\n<!-- /lever-table -->\nmiddle\n"
+                               "<!-- decisive-table: cmd -->\nold\n<!-- /decisive-table -->\nend\n")
+    assert lever_table.write_doc(tmp_path) == []
+    doc.write_text("no blocks\n")
+    with pytest.raises(ValueError, match="has no <!-- lever-table"):
+        lever_table.write_doc(tmp_path)
 
 
 def write_run(run, diffs, attempts):

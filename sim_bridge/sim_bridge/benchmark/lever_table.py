@@ -10,7 +10,7 @@ the issue's three targets it meets there. A lever whose run is not there yet say
 `--decisive` prints the same columns for the decisive runs instead, of the chosen lever and
 of the shipped Ours: 32 scenes on each tuning set, their 16 new scenes alone (the ones no
 choice saw), and the unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both
-outputs (tests/sim_bridge/test_lever_table.py).
+outputs (tests/sim_bridge/test_lever_table.py); `--write` rewrites them there.
 """
 
 from __future__ import annotations
@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
+import sys
 from pathlib import Path
 
 from .fresh_scenes import fresh_rounds
@@ -188,10 +190,44 @@ def table_lines(root: Path = REPO_ROOT) -> list:
     return lines
 
 
+DOC = "sim_bridge/doc/levers.md"
+# the page's generated blocks: <!-- TAG: command -->, the lines, <!-- /TAG -->
+BLOCKS = (("lever-table", table_lines), ("decisive-table", decisive_lines))
+
+
+def write_doc(root: Path = REPO_ROOT) -> list:
+    """Rewrite levers.md's generated blocks from the committed runs; -> the tags changed.
+    ValueError if the page lacks a block."""
+    path = root / DOC
+    text = original = path.read_text()
+    changed = []
+    for tag, lines in BLOCKS:
+        block = re.compile(rf"(<!-- {tag}: [^>]*-->\n)(.*?)(\n<!-- /{tag} -->)", re.S)
+        m = block.search(text)
+        if not m:
+            raise ValueError(f"{path} has no <!-- {tag}: ... --> ... <!-- /{tag} --> block")
+        new = "\n".join(lines(root))
+        if m.group(2) != new:
+            changed.append(tag)
+            text = text[:m.start(2)] + new + text[m.end(2):]
+    if text != original:
+        path.write_text(text)
+    return changed
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--decisive", action="store_true", help="the decisive runs (the chosen lever, the shipped Ours) instead")
+    p.add_argument("--write", action="store_true", help=f"rewrite both tables in {DOC} instead of printing one")
     args = p.parse_args(argv)
+    if args.write:
+        try:
+            changed = write_doc()
+        except ValueError as e:
+            print(f"lever_table: {e}", file=sys.stderr)
+            return 2
+        print(f"lever_table: {DOC}: " + (", ".join(changed) + " rewritten" if changed else "up to date"))
+        return 0
     print("\n".join(decisive_lines() if args.decisive else table_lines()))
     return 0
 
