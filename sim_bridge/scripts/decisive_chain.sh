@@ -14,7 +14,8 @@
 #   3. the seed-2000 confirmation: PRODUCT and Binary at 0.1 and 1.5 kg
 #   3b. with SCREEN (methods, comma-separated), the next lever screened where Binary's 32 scenes
 #      are: SCREEN at 0.1 and 1.5 kg, held-out then procedural (levers.md's rule: screen on 32
-#      scenes of both sets, decide on ~100); its rows then stay in every report
+#      scenes of both sets, decide on ~100); its rows are in the final report, and a restart's
+#      step 1-2 reports leave them out until 3b writes its report again
 #   4. PRODUCT and Binary at 4 kg, Ours-Precision at 1.5 and 4 kg
 #   5. PRODUCT at 0.5 kg on the first 16 scenes (Binary's, Ours' and Ours-Precision's are copied)
 #   6. METHOD on seed 2000, when it is not PRODUCT: the unbiased estimate of a lever not adopted
