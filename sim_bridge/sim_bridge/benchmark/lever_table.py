@@ -11,6 +11,9 @@ the issue's three targets it meets there. A lever whose run is not there yet say
 of the shipped Ours: 32 scenes on each tuning set, their 16 new scenes alone (the ones no
 choice saw), and the unseen procedural seed 2000. sim_bridge/doc/levers.md holds exactly both
 outputs (tests/sim_bridge/test_lever_table.py); `--write` rewrites them there.
+`--screen METHOD` applies the screen rule levers.md wrote before a screened method's rounds
+(the direction of all three targets on both decisive runs' 32 scenes) and prints its verdict
+last, `screen_<method>=passed|failed|incomplete`.
 """
 
 from __future__ import annotations
@@ -132,6 +135,43 @@ def targets_met(m: dict) -> str:
     return ", ".join(met) or "none"
 
 
+# The screen (levers.md, "What its 32 scenes decide", written before binary_scored's rounds were
+# read): the direction of each target, per scene against Binary on both decisive runs' 32 scenes.
+SCREEN_RUNS = ((HELDOUT, "heldout_v4_decisive"), (PROCEDURAL, "procedural_v4_decisive"))
+SCREEN_SCENES = 32
+
+
+def screen(method: str, root: Path = REPO_ROOT) -> tuple:
+    """(lines, verdict) of the screen rule for `method`: per decisive run, SR − Binary's per
+    scene ≥ −3 points at 0.1 kg, > 0 at 1.5 kg, losses before the lift ≤ 1.5 × Binary's.
+    verdict: "passed" (all six), "failed", or "incomplete" (a run's report is missing, or
+    fewer than SCREEN_SCENES scenes pair at a weight; what is there is still printed)."""
+    lines, checks, complete = [], [], True
+    for objects, run in SCREEN_RUNS:
+        m = measure(root / RESULTS / run, method)
+        if m is None:
+            lines.append(f"{objects}: no report of {method} against binary in {run} yet")
+            complete = False
+            continue
+        for kg, bound, passes in ((0.1, "≥ −3 pts", lambda d: d >= LIGHT_MIN), (1.5, "> 0 pts", lambda d: d > 0)):
+            if kg not in m["diff"]:
+                lines.append(f"{objects}, {kg:g} kg: not in {run}'s report")
+                complete = False
+                continue
+            d, p, scenes = m["diff"][kg]
+            complete &= scenes >= SCREEN_SCENES
+            checks.append(passes(d))
+            lines.append(f"{objects}, {kg:g} kg: {f'{100 * d:+.1f}'.replace('-', '−')} pts per scene "
+                         f"(p = {p:.2g}, {scenes} scenes), "
+                         f"needs {bound}: {'met' if checks[-1] else 'missed'}")
+        own, binary = m["losses"]
+        checks.append(own <= LOSS_RATIO_MAX * binary)
+        lines.append(f"{objects}, before the lift: {own} lost against Binary's {binary}, needs ≤ "
+                     f"{LOSS_RATIO_MAX:g} × Binary's: {'met' if checks[-1] else 'missed'}")
+    verdict = "incomplete" if not complete else "passed" if all(checks) else "failed"
+    return lines, verdict
+
+
 def _diff_cell(m: dict, kg: float) -> str:
     if kg not in m["diff"]:
         return "—"
@@ -219,7 +259,12 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--decisive", action="store_true", help="the decisive runs (the chosen lever, the shipped Ours) instead")
     p.add_argument("--write", action="store_true", help=f"rewrite both tables in {DOC} instead of printing one")
+    p.add_argument("--screen", metavar="METHOD", help="apply levers.md's screen rule to METHOD on the decisive runs")
     args = p.parse_args(argv)
+    if args.screen:
+        lines, verdict = screen(args.screen)
+        print("\n".join(lines + [f"screen_{args.screen}={verdict}"]))
+        return 0
     if args.write:
         try:
             changed = write_doc()
