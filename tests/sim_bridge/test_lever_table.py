@@ -122,5 +122,12 @@ def test_the_screen_needs_every_direction_on_both_sets_over_32_scenes(tmp_path, 
         for kg, d in ((0.1, 0.0), (1.5, 0.0))]))
     lines, verdict = lever_table.screen("ours_x", tmp_path)
     assert verdict == "failed" and lines[4].endswith("needs > 0 pts: missed")
+    (heldout / "comparisons.json").write_text(json.dumps([  # behind at 0.1 kg on a finished run:
+        {"method": "ours_x", "mass_kg": kg, "paired": {"scenes": 1, "diff": d, "p_value": 1.0}}
+        for kg, d in ((0.1, -0.05), (1.5, 0.1))]))
+    (procedural / "comparisons.json").unlink()  # failed, whatever the other set says
+    assert lever_table.screen("ours_x", tmp_path)[1] == "failed"
+    monkeypatch.setattr(lever_table, "SCREEN_SCENES", 32)  # ... unless the run is unfinished
+    assert lever_table.screen("ours_x", tmp_path)[1] == "incomplete"
     assert lever_table.main(["--screen", "ours_y"]) == 0  # no rounds of it in the committed runs
     assert capsys.readouterr().out.splitlines()[-1] == "screen_ours_y=incomplete"

@@ -145,23 +145,23 @@ SCREEN_SCENES = 32
 def screen(method: str, root: Path = REPO_ROOT) -> tuple:
     """(lines, verdict) of the screen rule for `method`: per decisive run, SR − Binary's per
     scene ≥ −3 points at 0.1 kg, > 0 at 1.5 kg, losses before the lift ≤ 1.5 × Binary's.
-    verdict: "passed" (all six), "failed", or "incomplete" (a run's report is missing, or
-    both ran fewer than SCREEN_SCENES scenes at a weight; what is there is still printed). A
-    round without an attempt (no grasp in its first view) has no SR, so fewer scenes may pair."""
-    lines, checks, complete = [], [], True
+    verdict: "passed" (all six), "failed" (a direction missed on a run both methods finished:
+    SCREEN_SCENES scenes at each weight), else "incomplete" (a report missing or a run
+    unfinished; what is there is still printed). A round without an attempt (no grasp in its
+    first view) has no SR, so fewer scenes may pair than ran."""
+    lines, missed, complete = [], False, True
     for objects, run in SCREEN_RUNS:
         m = measure(root / RESULTS / run, method)
-        if m is None:
-            lines.append(f"{objects}: no report of {method} against binary in {run} yet")
+        if m is None or any(kg not in m["diff"] for kg in WEIGHTS_KG):
+            lines.append(f"{objects}: no report of {method} against binary at {' and '.join(map(str, WEIGHTS_KG))} kg "
+                         f"in {run} yet")
             complete = False
             continue
+        finished = all(m["ran"][kg] >= SCREEN_SCENES for kg in WEIGHTS_KG)
+        complete &= finished
+        checks = []
         for kg, bound, passes in ((0.1, "≥ −3 pts", lambda d: d >= LIGHT_MIN), (1.5, "> 0 pts", lambda d: d > 0)):
-            if kg not in m["diff"]:
-                lines.append(f"{objects}, {kg:g} kg: not in {run}'s report")
-                complete = False
-                continue
             d, p, scenes = m["diff"][kg]
-            complete &= m["ran"][kg] >= SCREEN_SCENES
             checks.append(passes(d))
             lines.append(f"{objects}, {kg:g} kg: {f'{100 * d:+.1f}'.replace('-', '−')} pts per scene "
                          f"(p = {p:.2g}, {scenes} of {m['ran'][kg]} scenes pair), "
@@ -170,7 +170,8 @@ def screen(method: str, root: Path = REPO_ROOT) -> tuple:
         checks.append(own <= LOSS_RATIO_MAX * binary)
         lines.append(f"{objects}, before the lift: {own} lost against Binary's {binary}, needs ≤ "
                      f"{LOSS_RATIO_MAX:g} × Binary's: {'met' if checks[-1] else 'missed'}")
-    verdict = "incomplete" if not complete else "passed" if all(checks) else "failed"
+        missed |= finished and not all(checks)
+    verdict = "failed" if missed else "passed" if complete else "incomplete"
     return lines, verdict
 
 
