@@ -17,7 +17,9 @@ project's models (`binary_scored`, `ours`, ...: its own model file).
 The first pick is all it sees: a failure later in a round happened in a view this does
 not rebuild (before_lift_diagnosis replays those, at ~2 CPU-min a round), and "meets
 something" is geometry, the open hand's bounding boxes against the true surfaces, not the
-arm's 60 N contact stop: a pick that meets something may still be executed.
+arm's 60 N contact stop: a pick that meets something may still be executed. It can miss
+what matters: `binary_scored` passed it and then lost 32 of its 217 later attempts before the
+lift against 2 of its 62 first ones (studies.before_lift_split; sim_bridge/doc/levers.md).
 
     python -m sim_bridge.studies.first_view_picks --results sim_bridge/results/heldout_v4 \\
         --weights 0.1,0.5,1.5 --out sim_bridge/results/free_space_mask_first_view   # and --method binary
