@@ -108,8 +108,8 @@ def measure(run_dir: Path, method: str, after: int = 0) -> dict | None:
     # CR beside SR: a floor that leaves views without a grasp raises SR by attempting less
     rows = {(r["method"], r["mass_kg"]): r for r in summarize(paired, {method: list(both), "binary": list(both)})}
     cr = {kg: (rows[(method, kg)]["CR"], rows[("binary", kg)]["CR"]) for kg in both}
-    return {"diff": diff, "cr": cr, "ran": {kg: len(ids) for kg, ids in both.items()}, "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both)
-                                                    for m in (method, "binary"))}
+    return {"diff": diff, "cr": cr, "ran": {kg: len(ids) for kg, ids in both.items()},
+            "losses": tuple(sum(losses.get((m, kg), {"total": 0})["total"] for kg in both) for m in (method, "binary"))}
 
 
 def binary_drops(run_dir: Path, kg: float = 1.5) -> tuple | None:
