@@ -258,6 +258,9 @@ def end_lines(rounds, plan) -> list:
 
 BEFORE_LIFT = ("closed_on_nothing", "contact_stops", "rounds_all_refused")
 AFTER_LIFT = ("dropped", "dropped_in_hold", "dropped_in_shake")  # outcome classes: placed, lifted, then lost
+# the outcome classes of an attempt lost before the lift, and the BEFORE_LIFT count each adds to
+ATTEMPT_LOSSES = {"no_object": "closed_on_nothing", "jammed_on_approach": "contact_stops",
+                  "lift_blocked": "contact_stops"}
 
 
 def before_lift_losses(rounds) -> dict:
@@ -267,9 +270,7 @@ def before_lift_losses(rounds) -> dict:
     `lift_blocked`), and rounds that ended with every detected grasp refused by the
     executor (`no_feasible_grasp`)."""
     def losses(r):
-        classes = [outcome_class(a) for a in r["attempts"]]
-        return (["closed_on_nothing"] * classes.count("no_object")
-                + ["contact_stops"] * (classes.count("jammed_on_approach") + classes.count("lift_blocked"))
+        return ([ATTEMPT_LOSSES[c] for c in map(outcome_class, r["attempts"]) if c in ATTEMPT_LOSSES]
                 + ["rounds_all_refused"] * (r["end"] == "no_feasible_grasp"))
     counts = _tally(rounds, losses)
     for r in rounds:  # a method and weight with no loss still has its row

@@ -27,16 +27,19 @@ import sys
 
 import numpy as np
 
-from ..benchmark.report import outcome_class
+from ..benchmark.report import ATTEMPT_LOSSES, outcome_class
 from ..benchmark.run_vs_run import load_rounds
 
-LOST_BEFORE_LIFT = ("no_object", "jammed_on_approach", "lift_blocked")  # report.before_lift_losses' attempts
 BANDS = (0.9, 0.95, 0.97, 0.99)
 SAME_PLACE_M = 0.01  # a repeat: the TCP within this of the attempt before it
 
 
 def lost_before_lift(attempt: dict) -> bool:
-    return outcome_class(attempt) in LOST_BEFORE_LIFT
+    return outcome_class(attempt) in ATTEMPT_LOSSES
+
+
+def _share(lost: int, n: int) -> str:
+    return f"{lost} / {n} ({100 * lost / n:.0f} %)" if n else "—"
 
 
 def band_counts(rounds: list, methods, edges=BANDS) -> dict:
@@ -76,11 +79,9 @@ def position_counts(rounds: list, methods) -> dict:
 
 
 def position_lines(counts: dict) -> list:
-    def cell(lost, n):
-        return f"{lost} / {n} ({100 * lost / n:.0f} %)" if n else "—"
     return ["| method | first attempt of a round | later attempts | of those, where the attempt before had just failed |",
             "| --- | --- | --- | --- |"] + [
-        f"| {m} | {cell(*c['first'])} | {cell(*c['later'])} | {c['repeats']} |" for m, c in counts.items()]
+        f"| {m} | {_share(*c['first'])} | {_share(*c['later'])} | {c['repeats']} |" for m, c in counts.items()]
 
 
 def table_lines(counts: dict) -> list:
@@ -88,8 +89,7 @@ def table_lines(counts: dict) -> list:
     lines = ["| method | " + " | ".join(f"validness {lo:g}–{hi:g}" for lo, hi, *_ in bands) + " |",
              "|" + " --- |" * (len(bands) + 1)]
     for method, rows in counts.items():
-        cells = [f"{lost} / {n} ({100 * lost / n:.0f} %)" if n else "—" for *_, lost, n in rows]
-        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+        lines.append(f"| {method} | " + " | ".join(_share(lost, n) for *_, lost, n in rows) + " |")
     return lines
 
 
