@@ -13,7 +13,8 @@ from gravgrasp_msgs.msg import Grasp, GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from gravgrasp_detector.ros.tsdf_node import VOLUME_QOS
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
+from ros_testing import BackgroundSpin, wait_until
+from sim_bridge.ros.service_call import call_blocking
 from std_srvs.srv import SetBool
 
 import time
@@ -21,14 +22,6 @@ import time
 import rclpy.duration
 
 R = ExecuteGrasp.Response
-
-
-def wait_until(predicate, timeout_s):
-    """The test node spins in a background executor here, so wait without spinning."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and not predicate():
-        time.sleep(0.02)
-    return predicate()
 
 
 def top_down_grasp(x=0.15, y=0.15, z=0.08) -> Grasp:
@@ -67,21 +60,27 @@ def stack(ros_node, ros_process, tmp_path, execute_params):
     execute = ros_process("gravgrasp_detector", "execute",
                           params={"gripper_port": link, "check_ik": True, "gripper_timeout_s": 5.0, **execute_params})
     execute.wait_for_output("execute ready", timeout_s=30)
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(ros_node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    yield {"node": ros_node, "arm": arm, "execute": execute, "emulator": emulator}
-    executor.shutdown()
+    spinner = BackgroundSpin(ros_node)
+    # One client per service for the whole test, each through a first round trip that is
+    # safe to repeat (disarm; a grasp in a wrong frame): a reply to a just-created client
+    # can be lost (rmw_fastrtps#842), and resending an execution would not be safe.
+    arm_switch = ros_node.create_client(SetBool, "execute/arm")
+    assert not spinner.call(arm_switch, SetBool.Request(data=False), resend_s=3.0).message.startswith("armed")
+    execute_client = ros_node.create_client(ExecuteGrasp, "execute_grasp")
+    warm_up = spinner.call(execute_client, execute_request(top_down_grasp(), frame="warm_up"), resend_s=3.0)
+    assert warm_up.result_code == R.INVALID_REQUEST
+    yield {"node": ros_node, "arm": arm, "execute": execute, "emulator": emulator,
+           "arm_switch": arm_switch, "client": execute_client}
+    spinner.shutdown()
 
 
-def call(node, client, request, timeout_s=30.0):
-    assert client.wait_for_service(timeout_sec=15)
-    done = threading.Event()
-    future = client.call_async(request)
-    future.add_done_callback(lambda _: done.set())
-    assert done.wait(timeout_s), f"{client.srv_name} did not answer in {timeout_s} s"
-    return future.result()
+def call(client, request, timeout_s=30.0):
+    """The reply (the fixture's executor spins the test node); fails the test after timeout_s."""
+    return call_blocking(client, request, timeout_s, wait_for_service_s=15.0)
+
+
+def arm_executor(stack):
+    assert call(stack["arm_switch"], SetBool.Request(data=True)).success
 
 
 def execute_request(grasp=None, frame="task", index=None):
@@ -94,29 +93,26 @@ def execute_request(grasp=None, frame="task", index=None):
 
 
 def test_refuses_until_armed_then_executes_and_reports(stack):
-    node = stack["node"]
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
-    response = call(node, client, execute_request(top_down_grasp()))
+    client = stack["client"]
+    response = call(client, execute_request(top_down_grasp()))
     assert response.result_code == R.NOT_ARMED and "~/arm" in response.message
     assert stack["arm"]["targets"] == []
 
-    arm = node.create_client(SetBool, "execute/arm")
-    assert call(node, arm, SetBool.Request(data=True)).success
-    response = call(node, client, execute_request(top_down_grasp()))
+    arm_executor(stack)
+    response = call(client, execute_request(top_down_grasp()))
     assert response.success and response.result_code == R.SUCCESS, response.message
     assert [round(z, 3) for z in stack["arm"]["targets"]] == [0.13, 0.08, 0.23]
     assert response.executed_grasp.gravity_rejection_score == pytest.approx(20.0)
 
 
 def test_malformed_and_unknown_requests_are_invalid(stack):
-    node = stack["node"]
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    client = stack["client"]
     bad = top_down_grasp()
     bad.pose.position.x = math.nan
-    assert call(node, client, execute_request(bad)).result_code == R.INVALID_REQUEST
-    wrong_frame = call(node, client, execute_request(top_down_grasp(), frame="camera"))
+    assert call(client, execute_request(bad)).result_code == R.INVALID_REQUEST
+    wrong_frame = call(client, execute_request(top_down_grasp(), frame="camera"))
     assert wrong_frame.result_code == R.INVALID_REQUEST and "'task'" in wrong_frame.message
-    no_grasps = call(node, client, execute_request(index=0))
+    no_grasps = call(client, execute_request(index=0))
     assert no_grasps.result_code == R.INVALID_REQUEST and "out of range" in no_grasps.message
     assert stack["execute"].alive()
 
@@ -127,20 +123,20 @@ def test_by_index_of_latest_grasps_and_busy_while_running(stack):
     grasps = GraspArray()
     grasps.header.frame_id = "task"
     grasps.grasps = [top_down_grasp(0.12, 0.15), top_down_grasp(0.18, 0.15, 0.1)]
-    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
+    arm_executor(stack)
     assert wait_until(lambda: publisher.get_subscription_count() > 0, 15)
     publisher.publish(grasps)
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    client = stack["client"]
     # Hold the arm in its first motion, so the second call arrives mid-execution.
     stack["arm"]["gate"].clear()
     first = {}
-    worker = threading.Thread(target=lambda: first.setdefault("r", call(node, client, execute_request(index=1), 60)))
+    worker = threading.Thread(target=lambda: first.setdefault("r", call(client, execute_request(index=1), 60)))
     worker.start()
     assert wait_until(lambda: stack["arm"]["targets"] or not worker.is_alive(), 20)
     if not stack["arm"]["targets"]:
         worker.join()
         pytest.fail(f"first call did not start moving: {first['r'].message}")
-    busy = call(node, client, execute_request(top_down_grasp()))
+    busy = call(client, execute_request(top_down_grasp()))
     assert busy.result_code == R.BUSY
     stack["arm"]["gate"].set()
     worker.join(60)
@@ -149,12 +145,11 @@ def test_by_index_of_latest_grasps_and_busy_while_running(stack):
 
 
 def test_unreachable_grasp_is_refused_before_moving(stack):
-    node = stack["node"]
-    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    arm_executor(stack)
+    client = stack["client"]
     sideways_up = top_down_grasp()
     sideways_up.pose.orientation.x, sideways_up.pose.orientation.w = 0.0, 1.0  # approach pointing up
-    response = call(node, client, execute_request(sideways_up))
+    response = call(client, execute_request(sideways_up))
     assert response.result_code == R.UNREACHABLE and "cone" in response.message
     assert stack["arm"]["targets"] == []
 
@@ -169,16 +164,16 @@ def test_first_feasible_walks_past_refused_grasps_of_the_latest_grasps(stack):
     grasps = GraspArray()
     grasps.header.frame_id = "task"
     grasps.grasps = [top_down_grasp(0.9, 0.15), up, top_down_grasp(0.18, 0.15, 0.1), top_down_grasp()]
-    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
+    arm_executor(stack)
     assert wait_until(lambda: publisher.get_subscription_count() > 0, 15)
     publisher.publish(grasps)
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    client = stack["client"]
     only_first = execute_request(index=0)
-    assert wait_until(lambda: call(node, client, only_first).result_code != R.INVALID_REQUEST, 15)  # /grasps arrived
-    assert call(node, client, only_first).result_code == R.UNREACHABLE and stack["arm"]["targets"] == []
+    assert wait_until(lambda: call(client, only_first).result_code != R.INVALID_REQUEST, 15)  # /grasps arrived
+    assert call(client, only_first).result_code == R.UNREACHABLE and stack["arm"]["targets"] == []
     walk = execute_request(index=0)
     walk.first_feasible = True
-    response = call(node, client, walk, 60)
+    response = call(client, walk, 60)
     assert response.result_code == R.SUCCESS, response.message
     assert (response.executed_index, response.refused_before_motion) == (2, 2)
     assert response.executed_grasp.pose.position.z == pytest.approx(0.1)
@@ -200,9 +195,9 @@ def tsdf_volume(stamp) -> TSDFVolume:
 def test_no_or_a_stale_tsdf_is_refused_before_moving(stack):
     """Fault matrix row 'TSDF stale': STALE_SCENE at once, nothing moves, still armed."""
     node = stack["node"]
-    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
-    none_yet = call(node, client, execute_request(top_down_grasp()))
+    arm_executor(stack)
+    client = stack["client"]
+    none_yet = call(client, execute_request(top_down_grasp()))
     assert none_yet.result_code == R.STALE_SCENE and "no TSDF" in none_yet.message
 
     publisher = node.create_publisher(TSDFVolume, "tsdf", VOLUME_QOS)
@@ -210,13 +205,13 @@ def test_no_or_a_stale_tsdf_is_refused_before_moving(stack):
     now = node.get_clock().now()
     old = (now - rclpy.duration.Duration(seconds=10.0)).to_msg()
     publisher.publish(tsdf_volume(old))
-    assert wait_until(lambda: "s old" in call(node, client, execute_request(top_down_grasp())).message, 10)
-    stale = call(node, client, execute_request(top_down_grasp()))
+    assert wait_until(lambda: "s old" in call(client, execute_request(top_down_grasp())).message, 10)
+    stale = call(client, execute_request(top_down_grasp()))
     assert stale.result_code == R.STALE_SCENE and "max_tsdf_age_s" in stale.message, stale.message
     assert stack["arm"]["targets"] == []
 
     publisher.publish(tsdf_volume(node.get_clock().now().to_msg()))  # the camera is back
-    assert wait_until(lambda: call(node, client, execute_request(top_down_grasp())).result_code == R.SUCCESS, 15)
+    assert wait_until(lambda: call(client, execute_request(top_down_grasp())).result_code == R.SUCCESS, 15)
 
 
 @pytest.mark.parametrize("execute_params", [{"gripper_empty_closed_m": 0.0, "max_tsdf_age_s": 0.0,
@@ -232,10 +227,10 @@ def test_arm_service_that_vanishes_mid_move_is_an_arm_fault_then_recovers(stack,
     adapter = ros_process("tests", "hanging_arm", cmd=[sys.executable, str(pathlib.Path(__file__).resolve().parents[1] / "support" / "hanging_arm.py")],
                           remap={"move_to_pose": "hanging/move_to_pose"})
     adapter.wait_for_output("hanging_arm ready", 30)
-    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
-    client = node.create_client(ExecuteGrasp, "execute_grasp")
+    arm_executor(stack)
+    client = stack["client"]
     result = {}
-    worker = threading.Thread(target=lambda: result.setdefault("r", call(node, client, execute_request(top_down_grasp()), 60)))
+    worker = threading.Thread(target=lambda: result.setdefault("r", call(client, execute_request(top_down_grasp()), 60)))
     worker.start()
     adapter.wait_for_output("motion accepted", 30)
     t0 = time.monotonic()
@@ -245,11 +240,11 @@ def test_arm_service_that_vanishes_mid_move_is_an_arm_fault_then_recovers(stack,
     r = result["r"]
     assert r.result_code == R.ARM_FAULT and "left the ROS graph" in r.message, r.message
     assert elapsed < 10.0, f"took {elapsed:.1f} s (arm_timeout_s is 20 s)"
-    assert call(node, client, execute_request(top_down_grasp())).result_code == R.NOT_ARMED
+    assert call(client, execute_request(top_down_grasp())).result_code == R.NOT_ARMED
 
     # An adapter serves again (this test's own, under the name the executor uses).
     node.create_service(MoveToPose, "hanging/move_to_pose", lambda req, res: setattr(res, "success", True) or res,
                         callback_group=ReentrantCallbackGroup())
-    call(node, node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True))
-    again = call(node, client, execute_request(top_down_grasp()))
+    arm_executor(stack)
+    again = call(client, execute_request(top_down_grasp()))
     assert again.result_code == R.SUCCESS, again.message

@@ -209,9 +209,10 @@ class BackgroundSpin:
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
 
-    def call(self, client, request, timeout_s: float = 30.0):
-        """The response; raises ServiceTimeout (a TimeoutError) and so fails the test."""
-        return call_blocking(client, request, timeout_s, wait_for_service_s=15.0)
+    def call(self, client, request, timeout_s: float = 30.0, resend_s: float | None = None):
+        """The response; raises ServiceTimeout (a TimeoutError) and so fails the test.
+        `resend_s`: see call_blocking (only for requests that are safe to repeat)."""
+        return call_blocking(client, request, timeout_s, wait_for_service_s=15.0, resend_s=resend_s)
 
     def shutdown(self):
         self.executor.shutdown()

@@ -181,13 +181,13 @@ def test_ur_sample_starts_until_it_needs_the_robot(ros_process, ros_node, spin):
     move.target.header.frame_id = "task"
     move.target.pose.position.x, move.target.pose.position.y, move.target.pose.position.z = 0.15, 0.15, 0.2
     move.target.pose.orientation.x, move.target.pose.orientation.w = 1.0, 0.0
-    answer = spin.call(ros_node.create_client(MoveToPose, "move_to_pose"), move, 30)
+    answer = spin.call(ros_node.create_client(MoveToPose, "move_to_pose"), move, 30, resend_s=5.0)  # refused: safe to resend
     assert not answer.success and answer.message.startswith("arm connection lost"), answer.message
     request = ExecuteGrasp.Request()
     request.header.frame_id = "task"
     request.grasp.pose.position.x, request.grasp.pose.position.y, request.grasp.pose.position.z = 0.15, 0.15, 0.08
     request.grasp.pose.orientation.x, request.grasp.pose.orientation.w = 1.0, 0.0
-    result = spin.call(ros_node.create_client(ExecuteGrasp, "execute_grasp"), request, 30)
+    result = spin.call(ros_node.create_client(ExecuteGrasp, "execute_grasp"), request, 30, resend_s=5.0)
     # No camera here: refused for the missing view (before it would refuse as disarmed).
     assert result.result_code == ExecuteGrasp.Response.STALE_SCENE and "no TSDF" in result.message, result.message
     assert stack.alive()
@@ -226,7 +226,7 @@ def test_sim_sample_end_to_end(ros_process, ros_node, spin, tmp_path):
         "no grasps from the stack"
     grasps = seen["grasps"].grasps
     assert min(g.gravity_rejection_score for g in grasps) >= 1.47
-    assert spin.call(ros_node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    assert spin.call(ros_node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True), resend_s=5.0).success
     result = spin.call(ros_node.create_client(ExecuteGrasp, "execute_grasp"),
                        ExecuteGrasp.Request(use_index=True, grasp_index=0), 300)
     print(f"\nsim cell: top grasp {grasps[0].gravity_rejection_score:.1f} N -> {result.message}")

@@ -105,9 +105,9 @@ def test_refusals_then_a_successful_lift(world):
     p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
     client = node.create_client(ExecuteGrasp, "execute_grasp")
     arm = node.create_client(SetBool, "execute/arm")
-    assert call(arm, SetBool.Request(data=True)).success
+    assert call(arm, SetBool.Request(data=True), resend_s=5.0).success
 
-    bad = call(client, request([math.nan, 0, 0], q))
+    bad = call(client, request([math.nan, 0, 0], q), resend_s=5.0)  # refusals are safe to resend
     assert bad.result_code == R.INVALID_REQUEST
     far = call(client, request([0.15, 1.5, 0.1], q), timeout_s=30)
     assert far.result_code == R.UNREACHABLE
@@ -147,7 +147,7 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
     client = node.create_client(ExecuteGrasp, "execute_grasp")
     arm = node.create_client(SetBool, "execute/arm")
-    assert call(arm, SetBool.Request(data=True)).success
+    assert call(arm, SetBool.Request(data=True), resend_s=5.0).success
 
     # Overcurrent fault raised by the emulated gripper while the hand approaches.
     results = {}
@@ -177,7 +177,7 @@ def test_gripper_fault_mid_grasp_and_emergency_stop(world):
     assert wait_until(lambda: stamp_ns(seen["tsdf"]) > t_reset + 1e9 and not seen["states"].lifted[0], 30)
     obj = seen["states"].poses[0].position
     p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
-    assert call(arm, SetBool.Request(data=True)).success
+    assert call(arm, SetBool.Request(data=True), resend_s=5.0).success
     estop = node.create_publisher(Bool, "emergency_stop", 10)
     assert wait_until(lambda: estop.get_subscription_count() > 0, 15)
     results.clear()
@@ -222,7 +222,7 @@ def reload_scene(world):
     load = call(node.create_client(LoadScene, "load_scene"),
                 LoadScene.Request(seed=2, n_objects=1, arrangement="packed"), 120)
     assert load.success, load.message
-    assert call(node.create_client(Trigger, "tsdf/reset"), Trigger.Request()).success
+    assert call(node.create_client(Trigger, "tsdf/reset"), Trigger.Request(), resend_s=5.0).success
     return node.get_clock().now().nanoseconds
 
 
@@ -235,7 +235,7 @@ def test_top_grasp_from_the_detector_lifts_the_box(world):
     grasps = seen["grasps"].grasps
     assert len(grasps) > 0, "the shipped model found no grasp on a 44x55x103 mm box"
     assert all(a.gravity_rejection_score >= b.gravity_rejection_score for a, b in zip(grasps, grasps[1:])), "not ranked by score"
-    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True), resend_s=5.0).success
     result = call(node.create_client(ExecuteGrasp, "execute_grasp"),
                   ExecuteGrasp.Request(use_index=True, grasp_index=0), 240)
     assert result.result_code == R.SUCCESS, f"top grasp {grasps[0].gravity_rejection_score:.1f} N: {result.message}"
@@ -252,7 +252,7 @@ def test_closing_beside_the_box_is_no_object_and_the_hand_opens(world):
     p, q = grasp_from_tsdf(seen["tsdf"], (obj.x, obj.y))
     beside = p + [0.0, 0.0, 0.0]
     beside[1] = obj.y - 0.12 if obj.y > 0.15 else obj.y + 0.12  # 12 cm to the side, over bare table
-    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True), resend_s=5.0).success
     miss = call(node.create_client(ExecuteGrasp, "execute_grasp"), request(beside, q), 240)
     assert miss.result_code == R.NO_OBJECT, miss.message
     assert "where they close on nothing" in miss.message and "gOBJ 2" in miss.message
