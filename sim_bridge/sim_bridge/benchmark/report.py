@@ -388,7 +388,8 @@ def plot(rows, methods, path):
         ax.grid(alpha=0.3)
     axes[0].set_title("success ratio")
     axes[1].set_title("clear ratio")
-    axes[1].legend(fontsize=8)
+    if axes[1].get_legend_handles_labels()[0]:  # a run with no attempts yet has nothing to name
+        axes[1].legend(fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
