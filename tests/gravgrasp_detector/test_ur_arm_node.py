@@ -19,6 +19,7 @@ from std_srvs.srv import SetBool, Trigger
 from fake_rtde import FakeURController
 from gravgrasp_detector.ros.ur_arm_node import URArmNode
 from ros_testing import wait_until
+from sim_bridge.ros.service_call import call_blocking
 
 
 def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
@@ -30,13 +31,10 @@ def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
     return request
 
 
-def call(client, request, timeout_s=30.0):
-    assert client.wait_for_service(timeout_sec=15), f"{client.srv_name} not available"
-    done = threading.Event()
-    future = client.call_async(request)
-    future.add_done_callback(lambda _: done.set())
-    assert done.wait(timeout_s), f"{client.srv_name} did not answer in {timeout_s} s"
-    return future.result()
+def call(client, request, timeout_s=30.0, resend_s=None):
+    """The reply (the fixture's executor spins the test node); fails the test after timeout_s.
+    `resend_s` only for requests safe to repeat (call_blocking)."""
+    return call_blocking(client, request, timeout_s, wait_for_service_s=15.0, resend_s=resend_s)
 
 
 @pytest.fixture
@@ -165,7 +163,7 @@ def test_the_executor_grasps_through_the_ur_adapter(served, ros_process, tmp_pat
                           params={"gripper_port": link, "check_ik": True, "tcp_offset_m": 0.1558,
                                   "max_tsdf_age_s": 0.0, "gripper_empty_closed_m": 0.0})
     execute.wait_for_output("execute ready", timeout_s=60)
-    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True)).success
+    assert call(node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True), resend_s=5.0).success
     request = ExecuteGrasp.Request()
     request.header.frame_id, request.grasp = "task", top_down_grasp()
     result = call(node.create_client(ExecuteGrasp, "execute_grasp"), request, timeout_s=120)
