@@ -14,7 +14,7 @@ from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from gravgrasp_detector.ros.tsdf_node import VOLUME_QOS
 from rclpy.callback_groups import ReentrantCallbackGroup
 from ros_testing import BackgroundSpin, wait_until
-from sim_bridge.ros.service_call import call_blocking
+from ros_testing import call_spun as call  # the fixture's executor spins the test node
 from std_srvs.srv import SetBool
 
 import time
@@ -72,11 +72,6 @@ def stack(ros_node, ros_process, tmp_path, execute_params):
     yield {"node": ros_node, "arm": arm, "execute": execute, "emulator": emulator,
            "arm_switch": arm_switch, "client": execute_client}
     spinner.shutdown()
-
-
-def call(client, request, timeout_s=30.0):
-    """The reply (the fixture's executor spins the test node); fails the test after timeout_s."""
-    return call_blocking(client, request, timeout_s, wait_for_service_s=15.0)
 
 
 def arm_executor(stack):

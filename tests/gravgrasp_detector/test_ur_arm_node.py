@@ -18,8 +18,8 @@ from std_srvs.srv import SetBool, Trigger
 
 from fake_rtde import FakeURController
 from gravgrasp_detector.ros.ur_arm_node import URArmNode
+from ros_testing import call_spun as call
 from ros_testing import wait_until
-from sim_bridge.ros.service_call import call_blocking
 
 
 def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
@@ -29,12 +29,6 @@ def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
     p.x, p.y, p.z = float(x), float(y), float(z)
     q.x, q.w = 1.0, 0.0  # TCP z pointing down
     return request
-
-
-def call(client, request, timeout_s=30.0, resend_s=None):
-    """The reply (the fixture's executor spins the test node); fails the test after timeout_s.
-    `resend_s` only for requests safe to repeat (call_blocking)."""
-    return call_blocking(client, request, timeout_s, wait_for_service_s=15.0, resend_s=resend_s)
 
 
 @pytest.fixture

@@ -197,6 +197,13 @@ def call_service(node, client, request, timeout_s: float = 15.0, resend_s: float
                          "sent); a 'failed to send response' in the server's log means a lost reply (rmw_fastrtps#842)")
 
 
+def call_spun(client, request, timeout_s: float = 30.0, resend_s: float | None = None):
+    """The response of a client whose node another thread spins; raises ServiceTimeout (a
+    TimeoutError) and so fails the test. `resend_s`: see call_blocking (only for requests
+    that are safe to repeat)."""
+    return call_blocking(client, request, timeout_s, wait_for_service_s=15.0, resend_s=resend_s)
+
+
 class BackgroundSpin:
     """Spin a node in a MultiThreadedExecutor thread, for tests that call services from
     several threads at once (rclpy.spin_once on one node from two threads is unsafe)."""
@@ -210,9 +217,7 @@ class BackgroundSpin:
         self.thread.start()
 
     def call(self, client, request, timeout_s: float = 30.0, resend_s: float | None = None):
-        """The response; raises ServiceTimeout (a TimeoutError) and so fails the test.
-        `resend_s`: see call_blocking (only for requests that are safe to repeat)."""
-        return call_blocking(client, request, timeout_s, wait_for_service_s=15.0, resend_s=resend_s)
+        return call_spun(client, request, timeout_s, resend_s)
 
     def shutdown(self):
         self.executor.shutdown()
