@@ -23,23 +23,41 @@ def test_readme_table_is_what_the_command_prints():
         "README.md's results table differs: paste `python -m sim_bridge.benchmark.results_table` into it"
 
 
+def _write_runs(root, rows, comparisons):
+    for _, run in results_table.RUNS:
+        (root / run).mkdir(parents=True)
+        (root / run / "results.json").write_text(json.dumps(rows))
+        (root / run / "comparisons.json").write_text(json.dumps(comparisons))
+
+
 def test_a_cell_holds_sr_interval_and_the_paired_difference_to_binary(tmp_path):
-    run = tmp_path / "sim_bridge/results/heldout_v4"
-    run.mkdir(parents=True)
-    (tmp_path / "sim_bridge/results/procedural_v4").mkdir(parents=True)
     rows = [{"method": "ours", "mass_kg": 1.5, "SR": 0.5, "SR_ci95": [0.3, 0.7], "successes": 10, "attempts": 20},
             {"method": "binary", "mass_kg": 1.5, "SR": 0.25, "SR_ci95": [0.11, 0.47], "successes": 5, "attempts": 20}]
     # the pooled z test's figures stay in results.md; the cell shows the paired per-scene one
     comparisons = [{"method": "ours", "mass_kg": 1.5, "diff": 0.25, "p_value": 0.0952,
                     "paired": {"scenes": 16, "diff": 0.2813, "ci95": [0.1, 0.4], "p_value": 0.0312}}]
-    for d in (run, tmp_path / "sim_bridge/results/procedural_v4"):
-        (d / "results.json").write_text(json.dumps(rows))
-        (d / "comparisons.json").write_text(json.dumps(comparisons))
+    _write_runs(tmp_path, rows, comparisons)
     lines = results_table.table_lines(tmp_path)
     assert lines[0] == "| objects | method | SR 1.5 kg |"
     assert lines[2] == "| held-out meshes | **Ours** | 50.0 % (10/20; 30–70), +28.1 pts, p = 0.031 |"
     assert lines[3] == "| held-out meshes | Binary | 25.0 % (5/20; 11–47) |"
     assert len(lines) == 6
+
+
+def test_levers_and_weights_never_run_are_left_out_and_fewer_scenes_are_named(tmp_path):
+    """Only the shipped models' rows; a weight a method never ran is a dash, not '0/0'; a
+    cell on fewer scenes than the run's (0.5 kg on 16 of 32) says so."""
+    def row(method, kg, rounds, successes, attempts):
+        return {"method": method, "mass_kg": kg, "rounds": rounds, "SR": successes / attempts if attempts else
+                float("nan"), "SR_ci95": [0.2, 0.8], "successes": successes, "attempts": attempts}
+    rows = [row("ours", 0.1, 32, 30, 40), row("ours", 0.5, 16, 10, 20), row("binary", 0.1, 32, 35, 40),
+            row("binary", 0.5, 16, 12, 20), row("ours_precision_sure", 0.1, 32, 36, 40),
+            row("ours_precision_sure", 0.5, 0, 0, 0)]
+    _write_runs(tmp_path, rows, [])
+    lines = results_table.table_lines(tmp_path)
+    assert lines[0] == "| objects | method | SR 0.1 kg | SR 0.5 kg |"
+    assert lines[2] == "| held-out meshes | **Ours** | 75.0 % (30/40; 20–80) | 50.0 % (10/20; 20–80; 16 scenes) |"
+    assert not any("ours_precision_sure" in line for line in lines) and len(lines) == 6
 
 
 def test_the_tabled_runs_are_the_shipped_models():
