@@ -154,9 +154,11 @@ def test_modes_of_lifted_objects_are_tabulated_with_how_many_then_held():
         return {"mode": mode, "success": success, "outcome": "success" if success else "dropped_in_shake"}
     rounds = [{"method": "ours", "mass_kg": 1.5, "attempts": [attempt("power", True), attempt("power", False),
                                                                 attempt("precision", False), attempt("", False)]},
-              {"method": "ours", "mass_kg": 1.5, "attempts": [attempt("power", True)]}]
-    lines = report.mode_lines(rounds, {"ours": [0.1, 1.5]})
-    assert "| ours | 1.5 | 2 / 3 | 0 / 1 |" in lines and "| ours | 0.1 | 0 / 0 | 0 / 0 |" in lines
+              {"method": "ours", "mass_kg": 1.5, "attempts": [attempt("power", True)]},
+              {"method": "ours", "mass_kg": 0.5, "attempts": [attempt("", False)]}]
+    lines = report.mode_lines(rounds, {"ours": [0.1, 0.5, 1.5]})
+    assert "| ours | 1.5 | 2 / 3 | 0 / 1 |" in lines and "| ours | 0.5 | 0 / 0 | 0 / 0 |" in lines
+    assert not any(line.startswith("| ours | 0.1 |") for line in lines)  # no rounds there: no row
 
 
 def test_a_motion_stopped_by_contact_is_told_apart_by_where_and_round_ends_are_per_method():
@@ -599,7 +601,8 @@ def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeyp
     capsys.readouterr()
     assert cb.main(argv + ["--report"]) == 0
     monkeypatch.undo()
-    assert "| ours | 0.3 | 0/1 |" in (out / "results.md").read_text()
+    md = (out / "results.md").read_text()
+    assert "| ours | 0.3 |" not in md and "No rounds (not run, or not yet): ours at 0.3 kg." in md
     assert "an interim report" in capsys.readouterr().out
     assert not (out / "rounds" / "ours" / "0.3" / "packed_000.json").exists()
     (out / "excluded_objects.json").unlink()  # a run stopped before it listed them

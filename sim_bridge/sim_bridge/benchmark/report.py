@@ -138,12 +138,23 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
              "| method | weight [kg] | rounds | SR | SR 95 % CI | CR | CR 95 % CI | successes / attempts / objects "
              "| left before start / fell off |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    # a method and weight with no rounds yet (or never planned: a report over several runs'
+    # methods) is one line under the table, not an empty row in every table
+    empty = {(r["method"], r["mass_kg"]) for r in rows if not r["rounds"]}
     for r in rows:
-        lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['rounds']}/{expected} | {_pct(r['SR'])} | "
-                     f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
-                     f"{r['successes']} / {r['attempts']} / {r['objects']} | "
-                     f"{r['left_before_start']} / {r['fell_off']} |")
-    lines += ["", *comparison_lines(comparisons)]
+        if (r["method"], r["mass_kg"]) not in empty:
+            lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['rounds']}/{expected} | {_pct(r['SR'])} | "
+                         f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
+                         f"{r['successes']} / {r['attempts']} / {r['objects']} | "
+                         f"{r['left_before_start']} / {r['fell_off']} |")
+    no_rounds = {}  # method: its weights without rounds, in the rows' order
+    for r in rows:
+        if (r["method"], r["mass_kg"]) in empty:
+            no_rounds.setdefault(r["method"], []).append(f"{r['mass_kg']:g}")
+    if no_rounds:
+        lines += ["", "No rounds (not run, or not yet): "
+                  + "; ".join(f"{m} at {', '.join(ws)} kg" for m, ws in no_rounds.items()) + "."]
+    lines += ["", *comparison_lines([c for c in comparisons if (c["method"], c["mass_kg"]) not in empty])]
     lines += ["", *outcome_lines(rounds, plan)]
     lines += ["", *mode_lines(rounds, plan)]
     if protocol.close_on_contact_within_m > 0:
@@ -350,7 +361,9 @@ def mode_lines(rounds, plan) -> list:
              "| method | weight [kg] | power | precision |", "| --- | --- | --- | --- |"]
     for method, weights_kg in plan.items():
         for w in weights_kg:
-            row = counts.get((method, float(w)), {})
+            if (method, float(w)) not in counts:  # no rounds there (listed under the first table)
+                continue
+            row = counts[(method, float(w))]
             cells = [f"{row[m][1]} / {row[m][0]}" if m in row else "0 / 0" for m in ("power", "precision")]
             lines.append(f"| {method} | {w:g} | " + " | ".join(cells) + " |")
     return lines
