@@ -140,21 +140,19 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     # a method and weight with no rounds yet (or never planned: a report over several runs'
     # methods) is one line under the table, not an empty row in every table
-    empty = {(r["method"], r["mass_kg"]) for r in rows if not r["rounds"]}
-    for r in rows:
-        if (r["method"], r["mass_kg"]) not in empty:
-            lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['rounds']}/{expected} | {_pct(r['SR'])} | "
-                         f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
-                         f"{r['successes']} / {r['attempts']} / {r['objects']} | "
-                         f"{r['left_before_start']} / {r['fell_off']} |")
     no_rounds = {}  # method: its weights without rounds, in the rows' order
     for r in rows:
-        if (r["method"], r["mass_kg"]) in empty:
-            no_rounds.setdefault(r["method"], []).append(f"{r['mass_kg']:g}")
+        if not r["rounds"]:
+            no_rounds.setdefault(r["method"], []).append(r["mass_kg"])
+            continue
+        lines.append(f"| {r['method']} | {r['mass_kg']:g} | {r['rounds']}/{expected} | {_pct(r['SR'])} | "
+                     f"{_ci(r['SR_ci95'])} | {_pct(r['CR'])} | {_ci(r['CR_ci95'])} | "
+                     f"{r['successes']} / {r['attempts']} / {r['objects']} | "
+                     f"{r['left_before_start']} / {r['fell_off']} |")
     if no_rounds:
-        lines += ["", "No rounds (not run, or not yet): "
-                  + "; ".join(f"{m} at {', '.join(ws)} kg" for m, ws in no_rounds.items()) + "."]
-    lines += ["", *comparison_lines([c for c in comparisons if (c["method"], c["mass_kg"]) not in empty])]
+        lines += ["", "No rounds (not run, or not yet): " + "; ".join(
+            f"{m} at {', '.join(f'{w:g}' for w in ws)} kg" for m, ws in no_rounds.items()) + "."]
+    lines += ["", *comparison_lines([c for c in comparisons if c["mass_kg"] not in no_rounds.get(c["method"], ())])]
     lines += ["", *outcome_lines(rounds, plan)]
     lines += ["", *mode_lines(rounds, plan)]
     if protocol.close_on_contact_within_m > 0:
