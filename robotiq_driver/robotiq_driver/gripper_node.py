@@ -21,19 +21,18 @@ import sys
 import threading
 import time
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from gravgrasp_msgs.msg import GripperStatus
 from gravgrasp_msgs.srv import MoveGripper
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from .gripper_client import GripperError, GripperLinkError, Robotiq2F85, describe_motion_end
 from .gripper_registers import MAJOR_FAULTS, GripperCommand, GripperScale, GripperState
+from .node_process import run_node
 
 COMM_ERRORS = GripperLinkError  # the link is gone: reconnect (the driver raises only GripperError)
 
@@ -286,24 +285,8 @@ class GripperNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = GripperNode()
-    except (ValueError, InvalidParameterValueException) as error:
-        print(f"robotiq_gripper: invalid parameter: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = MultiThreadedExecutor(num_threads=3)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node("gripper", GripperNode, (ValueError, InvalidParameterValueException), threads=3, args=args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

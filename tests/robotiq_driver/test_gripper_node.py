@@ -123,4 +123,4 @@ def test_node_without_a_port_keeps_running_and_says_why(ros_node, ros_process, t
 def test_node_rejects_an_out_of_range_parameter(ros_process):
     node = ros_process("robotiq_driver", "gripper", params={"slave_id": 300})
     assert node.wait_exit(30) == 2
-    assert "invalid parameter" in node.output() and "slave_id" in node.output()
+    assert "cannot start" in node.output() and "slave_id" in node.output()

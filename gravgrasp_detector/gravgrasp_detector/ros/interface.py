@@ -1,17 +1,13 @@
 """The ROS edge every node of the project shares: geometry_msgs poses <-> 4x4 matrices,
-parameter descriptors, and `run_node`, which starts, spins and shuts a node down.
-
-A node's `main` is one line, e.g. `return run_node("tsdf", TSDFNode, InputError)`
-(`spin` alone for a process that builds several nodes itself, as `stack` does):
-a start-up error in the node's constructor (bad parameter, missing model file) prints one
-line, "[FATAL] [<node>]: cannot start: <why>", and the process exits 2; Ctrl-C and an
-external shutdown end it with 0 after `node.close()` (if the node has one).
+parameter descriptors, and (from robotiq_driver.node_process, the one copy every package's
+nodes use) `run_node`, which starts, spins and shuts a node down.
 """
 
 from __future__ import annotations
 
 from geometry_msgs.msg import Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from robotiq_driver.node_process import run_node, shut_down, spin  # noqa: F401  (re-exported for the nodes)
 
 from ..poses import matrix_from_pose, pose_from_matrix
 
@@ -59,50 +55,3 @@ def float_range(description: str, low: float, high: float, read_only: bool = Fal
 def int_range(description: str, low: int, high: int, step: int = 1, read_only: bool = False) -> ParameterDescriptor:
     return ParameterDescriptor(description=description, read_only=read_only,
                                integer_range=[IntegerRange(from_value=int(low), to_value=int(high), step=int(step))])
-
-
-# -- start-up and shut-down ----------------------------------------------------------
-
-
-def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | None = None, args=None) -> int:
-    """rclpy.init, `make_node()`, spin until Ctrl-C or shutdown, clean up; -> exit code.
-
-    `start_errors`: the exceptions the constructor raises for a bad configuration; they
-    end the process with one line and code 2 (anything else is a bug: traceback).
-    `threads`: None spins a single-threaded executor, else a MultiThreadedExecutor.
-    """
-    import rclpy  # lazy: see spin
-
-    rclpy.init(args=args)
-    try:
-        node = make_node()
-    except start_errors as err:
-        rclpy.logging.get_logger(name).fatal(f"cannot start: {err}")
-        rclpy.try_shutdown()
-        return 2
-    return spin([node], threads)
-
-
-def spin(nodes, threads: int | None = None) -> int:
-    """Spin `nodes` (rclpy already initialised) until Ctrl-C or shutdown; then
-    `close()` each node that has one, destroy them and shut rclpy down; -> 0."""
-    # lazy: rclpy; the message conversions above also serve modules that
-    # stay rclpy-free (markers).
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
-
-    executor = SingleThreadedExecutor() if threads is None else MultiThreadedExecutor(num_threads=threads)
-    for node in nodes:
-        executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        for node in nodes:
-            if hasattr(node, "close"):
-                node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0

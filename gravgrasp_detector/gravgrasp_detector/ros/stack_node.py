@@ -35,7 +35,7 @@ from ..perception.tsdf import InputError
 from .cell_config import CellConfigError, check_consistency, load_sections, params_files, plan, unknown_parameters
 from .detect_node import DetectNode
 from .execute_node import ExecuteNode
-from .interface import described, spin
+from .interface import described, shut_down, spin
 from .tsdf_node import TSDFNode
 from .ur_arm_node import URArmNode
 
@@ -91,11 +91,7 @@ def main(args=None):
                           None if ur is None else {n: ur.get_parameter(n).value for n in ("base_xyz_yaw", "tcp_in_flange")})
     except (CellConfigError, InputError, ModelFileError, ValueError, OSError, ParameterException) as err:
         print(f"stack: cannot start: {err}", file=sys.stderr, flush=True)
-        for node in nodes:
-            if hasattr(node, "close"):
-                node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+        shut_down(nodes)
         return 2
     log = nodes[0].get_logger()
     for note in cell.notes:
