@@ -11,9 +11,8 @@ from sim_bridge.physics.objects import ObjectError, load_mesh_object, parse_obje
 
 pytestmark = pytest.mark.drake
 
+# ../shared/meshes beside the repository (tests that need it skip without it)
 VGN = pathlib.Path(__file__).resolve().parents[3] / "shared" / "meshes" / "vgn_train"
-if not VGN.is_dir():
-    VGN = pathlib.Path("/work/shared/meshes/vgn_train")
 
 
 def test_box_mass_properties_match_the_formula():
