@@ -28,12 +28,10 @@ def tcp(x, y, z, R=DOWN):
 def make_arm(ur=None, log=None, **overrides):
     ur = ur or FakeURController()
     # The executor's default base: 0.45 m in front of the workspace, turned 90 deg.
-    # Timeouts generous enough for a loaded 2-core machine; the hang tests shorten them. A
-    # 1 s RTDE watchdog (the adapter's is 0.2 s): under CI load the kick thread starved past
-    # 0.2 s and the stand-in ended the script mid-move; the watchdog's own tests set 0.2 s.
+    # Timeouts generous enough for a loaded 2-core machine; the hang tests shorten them. The
+    # RTDE watchdog at its production period (0.5 s).
     settings = dict(X_task_base=xyz_yaw_to_matrix([0.15, -0.45, 0.0, math.pi / 2]), call_timeout_s=1.5,
-                    connect_timeout_s=3.0, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2,
-                    watchdog_period_s=1.0)
+                    connect_timeout_s=3.0, motion_timeout_margin_s=0.5, max_speed_mps=0.5, default_speed_mps=0.2)
     settings.update(overrides)
     arm = URArm(ur.connect, URArmSettings(**settings), log=log)
     # Start the fake TCP where the first target of most tests is, in the base frame.
@@ -189,7 +187,7 @@ def test_lost_link_mid_motion_raises_then_reconnects():
     ur.lose_link_after_s = None
     result = arm.move(tcp(0.15, 0.15, 0.40), 0.5)  # fresh interfaces, TCP set again
     assert result.success, result.message
-    assert ur.connects == 2 and len(ur.called("setTcp")) == 2
+    assert ur.connects == 2 and len(ur.called("setTcp")) == 4, "at each connect and before each moveL"
 
 
 def test_a_call_that_never_answers_is_a_lost_link_not_a_hang():

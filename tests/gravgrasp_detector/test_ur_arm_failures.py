@@ -20,6 +20,7 @@ from test_ur_arm import _wait, make_arm, tcp
     (dict(safety_mode=3, program_running=False), "PROTECTIVE_STOP: protective stop: find what the arm hit"),
     (dict(safety_mode=7, robot_mode=3, program_running=False), "ROBOT_EMERGENCY_STOP: robot emergency stop: make the cell safe"),
     (dict(safety_mode=5), "SAFEGUARD_STOP: safeguard stop"),
+    (dict(safety_mode=4, program_running=False), "RECOVERY: safety RECOVERY mode: the arm is beyond a safety limit"),
     (dict(safety_mode=8, program_running=False), "VIOLATION: safety VIOLATION"),
     (dict(safety_mode=9, program_running=False), "FAULT: safety FAULT"),
     (dict(robot_mode=5), "robot mode is IDLE, not RUNNING: release the brakes"),
@@ -59,7 +60,8 @@ def test_protective_stop_cleared_on_the_pendant_restores_control_by_itself():
     assert restored == ["control restored after a PROTECTIVE_STOP: the RTDE control script had ended; "
                         "re-uploaded it and set the TCP again"], lines
     assert ur.program_running and len(ur.called("reuploadScript")) == 1
-    assert len(ur.called("setTcp")) == 2, "the TCP lives in the script: set again"
+    assert len(ur.called("setTcp")) == 3, "the TCP lives in the script: set again (connect, the motion, the restore)"
+    assert ur.controller_tcp == [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]
     again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
     assert again.success, again.message
     assert ur.connects == 1, "no reconnect was needed, nor a call to ~/reconnect"
@@ -78,20 +80,43 @@ def test_emergency_stop_released_restores_control_at_the_next_request():
     assert [line for line in lines if line.startswith("control restored after a ROBOT_EMERGENCY_STOP")], lines
 
 
-def test_program_stopped_on_the_pendant_is_restored_not_refused():
+def test_program_stopped_on_the_pendant_is_latched_until_armed():
+    """Path 5: the operator's Stop on the pendant ends the control script with the robot
+    RUNNING and NORMAL. Neither the next request nor the recovery timer may restart it and
+    move: latched like the emergency stop until ~/arm."""
     lines = []
     arm, ur = make_arm(log=lines.append)
     arm.connect()
-    ur.program_running = False  # someone pressed stop / played another program
+    ur.press_stop_on_pendant()
     result = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
-    assert result.success, result.message
-    assert len(lines) == 1 and lines[0].startswith("control restored: the RTDE control script had ended"), lines
+    assert not result.success and "the program stopped on the teach pendant" in result.message, result.message
+    assert "is latched" in result.message and ur.called("moveL") == []
+    assert arm.keep_connected() is None and arm.watch() is None
+    assert ur.called("reuploadScript") == [] and not ur.program_running, "the recovery timer restarted the script"
+    assert arm.arm(True).startswith("armed: motion allowed (cleared: the program stopped on the teach pendant")
+    again = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
+    assert again.success, again.message
+    assert [line for line in lines if line.startswith("control restored after ~/arm after the latch")], lines
+
+
+def test_program_stopped_on_the_pendant_mid_motion_is_named_at_once():
+    arm, ur = make_arm()
+    arm.connect()
+    ur.on_call["getAsyncOperationProgress"] = lambda: ur._motion and time.monotonic() - ur._motion["t0"] > 0.1 \
+        and ur.press_stop_on_pendant()
+    t0 = time.monotonic()
+    result = arm.move(tcp(0.15, 0.15, 0.40), 0.1)  # 2 s unless stopped
+    assert not result.success and "the program stopped on the teach pendant" in result.message, result.message
+    assert "during the motion" in result.message and time.monotonic() - t0 < 1.0
+    assert arm.latched
 
 
 def test_program_that_cannot_restart_is_refused_with_what_to_do():
     arm, ur = make_arm(connect_timeout_s=0.3)
     arm.connect()
-    ur.program_running = False
+    ur.press_stop_on_pendant()
+    assert "is latched" in arm.move(tcp(0.15, 0.15, 0.25), 0.5).message
+    arm.arm(True)  # a person armed it again, then switched the pendant to Local
     ur.control_unavailable = True  # the pendant switched to Local mode: the re-uploaded script is not run
     result = arm.move(tcp(0.15, 0.15, 0.25), 0.5)
     assert not result.reachable and "could not be restarted" in result.message, result.message
@@ -100,10 +125,10 @@ def test_program_that_cannot_restart_is_refused_with_what_to_do():
 
 
 def test_watchdog_is_set_before_every_motion_and_kicked_while_it_runs():
-    arm, ur = make_arm(watchdog_period_s=0.2)  # the adapter's default
+    arm, ur = make_arm()
     assert arm.move(tcp(0.15, 0.15, 0.30), 0.2).success  # ~0.5 s
     names = [n for n, _ in ur.calls]
-    assert ur.called("setWatchdog") == [(5.0,)], "1 / watchdog_period_s (0.2 s)"
+    assert ur.called("setWatchdog") == [(2.0,)], "1 / watchdog_period_s (0.5 s)"
     assert names.index("setWatchdog") < names.index("moveL")
     kicks = names.count("kickWatchdog")
     print(f"{kicks} kicks during a 0.5 s motion")
@@ -115,19 +140,19 @@ def test_watchdog_is_set_before_every_motion_and_kicked_while_it_runs():
 
 
 def test_link_lost_mid_motion_the_watchdog_stops_the_arm():
-    arm, ur = make_arm(watchdog_period_s=0.2)  # the adapter's default
+    arm, ur = make_arm()
     arm.connect()
     ur.lose_link_after_s = 0.2
     start = np.array(ur.tcp_pose[:3])
     t0 = time.monotonic()
-    with pytest.raises(ConnectionLost, match="watchdog stops the arm within 0.2 s"):
+    with pytest.raises(ConnectionLost, match="watchdog stops the arm within 0.5 s"):
         arm.move(tcp(0.15, 0.15, 0.50), 0.1)  # 224 mm at 0.1 m/s: 2.2 s if nothing stops it
     assert time.monotonic() - t0 < 2.0
     assert _wait(lambda: not ur.motion_running, 1.0), "the controller went on moving"
     travelled_m = float(np.linalg.norm(np.array(ur.tcp_pose[:3]) - start))
     print(f"link lost after 0.2 s: the arm stopped after {travelled_m * 1000:.0f} mm of 224 mm")
     assert ur.watchdog_tripped and not ur.program_running
-    assert travelled_m < 0.1 * (0.2 + 0.2 + 0.1), "stopped within the watchdog period (+ a poll)"
+    assert travelled_m < 0.1 * (0.2 + 0.5 + 0.1), "stopped within the watchdog period (+ a poll)"
     ur.lose_link_after_s = None
     result = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
     assert result.success, result.message  # fresh interfaces; their constructor uploads the script

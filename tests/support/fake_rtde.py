@@ -75,7 +75,7 @@ controller_tcp is the TCP pose a real controller reports.
 
 And read back: `watchdog_tripped` (the watchdog stopped the script), `motion_running`,
 `reconnects` (ur_rtde's own reconnects), `motions` (every motion the controller ran:
-start, target, who sent it), `payload`, `clear_protective_stop()` (what unlocking on the
+start, target, its TCP, the flange at its start, who sent it), `travelled_m(motion)`, `payload`, `clear_protective_stop()` (what unlocking on the
 pendant does), `press_stop_on_pendant()`.
 """
 from __future__ import annotations
@@ -113,6 +113,7 @@ class FakeURController:
         self.emergency_stop_after_s = None
         self.lose_link_after_s = None
         self.reconnect_wait_s = 0.0
+        self.reconnect_takes_s = 0.0  # ur_rtde's reconnect once the network is back (sync, script upload)
         self.never_finish = False
         self.arrive_offset_m = 0.0
         self.tcp_force = [0.0] * 6
@@ -149,6 +150,9 @@ class FakeURController:
         if self.refuse_connect:
             raise RuntimeError("Error: Could not connect to: 192.0.2.1 at 30004, verify the IP")
         with self._lock:
+            if self._link_back_t is not None and time.monotonic() < self._link_back_t:
+                raise RuntimeError("Error: Could not connect to: 192.0.2.1 at 30004, verify the IP (No route to host)")
+            self._link_back_t = None
             self._set_link(True)
         receive = receive or FakeReceive(self)
         if self.control_unavailable:  # the constructor's remote-control check (PolyScope >= 5.6)
@@ -187,6 +191,12 @@ class FakeURController:
         self._update()
         with self._lock:
             return _ur_pose(self.flange @ _matrix(tcp_offset))
+
+    def travelled_m(self, motion) -> float:
+        """How far the flange is now from where `motion` (an entry of `motions`) started."""
+        self._update()
+        with self._lock:
+            return float(np.linalg.norm(self.flange[:3, 3] - motion["flange"][:3, 3]))
 
     @property
     def motion_running(self) -> bool:
@@ -315,13 +325,19 @@ class FakeURController:
         self._update()
         if not self.link_up:
             waited_until = time.monotonic() + self.reconnect_wait_s
+            reconnects = self.reconnects
             while not self.link_up and time.monotonic() < waited_until:
                 time.sleep(0.01)
                 self._update()
             if not self.link_up:
                 raise RuntimeError("RTDEControlInterface: Robot is disconnected, reconnecting... "
                                    "connect: No route to host")
-            # _update() brought the link back and reconnected: `return sendCommand(cmd);`
+            # This command's own `reconnect(); return sendCommand(cmd);` (cpp 2290-2295),
+            # unless the receive thread reconnected meanwhile.
+            time.sleep(self.reconnect_takes_s)
+            with self._lock:
+                if self.reconnects == reconnects:
+                    self._reconnect()
         with self._lock:
             if not self.program_running:
                 return False
@@ -395,7 +411,7 @@ class FakeURController:
             self._motion = {"start": start, "target": list(target), "tcp": list(self.controller_tcp),
                             "t0": time.monotonic(), "duration": duration}
             self.motions.append({"start": start, "target": list(target), "tcp": list(self.controller_tcp),
-                                 "by": by, "t0": time.monotonic()})
+                                 "flange": self.flange.copy(), "by": by, "t0": time.monotonic()})
             self._op_id, self._op_running = (self._op_id + 1) % 128, True  # signal_async_operation_started()
 
     def _stop_motion(self):

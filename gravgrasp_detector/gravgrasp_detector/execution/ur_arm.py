@@ -92,6 +92,13 @@ from .ur_controller import (ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, C
 from .ur_kinematics import flange_in_base as nominal_flange_in_base
 
 
+def _quietly(fn):
+    try:
+        fn()
+    except Exception:  # best effort: the link is being dropped anyway
+        pass
+
+
 class URArmError(Exception):
     """Base of this module's errors."""
 
@@ -141,6 +148,13 @@ class URArm:
         self.latched = ""        # why motions are refused until arm(True) ('' = not latched)
         self._kicking = False    # a watchdog is set on the controller: the kick loop kicks it
         self._stop_cause = ""    # the last stop seen (safety mode), for the log line on recovery
+        # moveL and the stop/latch flags change together: a stop either sees the motion sent
+        # (and sends stopL after it) or the motion sees the stop (and sends nothing)
+        self._send_lock = threading.Lock()
+        self._kick_ok_t = None   # when the last kick was accepted (monotonic)
+        self._kick_gap_s = 0.0   # the largest gap between accepted kicks since reset
+        self._kick_refused_gap_s = 0.0  # the gap before the kick the controller refused
+        self._idle_pose = None   # where the TCP was when the last request ended
 
     # -- connection -----------------------------------------------------------------
 
@@ -165,7 +179,7 @@ class URArm:
         with self._link_lock:
             # Watching only: keep the live receive interface, so flange_pose has no gap.
             keep = self._receive if self._control is None else None
-            self._drop_locked("reconnecting")
+            self._drop_locked("reconnecting", keep)
             calls = CallThread()
             try:
                 got = self._wait(calls.submit(self._connect, keep), self.settings.connect_timeout_s,
@@ -182,8 +196,13 @@ class URArm:
             return f"{status}; {self.last_error}"
         threading.Thread(target=self._kick_loop, args=(calls, control), name="rtde-watchdog", daemon=True).start()
         try:
+            # Before anything else: halt whatever ur_rtde may have sent again on a connection
+            # ur_arm gave up (its reconnect resends the command it was sending). ur_arm never
+            # resumes a motion by itself; a new request is a new motion.
+            self._rpc(control.stopL, float(self.settings.stop_deceleration_mps2), False)
             self._configure(control)
             status = self.status_line()
+            self._idle_pose = None
         except ConnectionLost as e:
             self.last_error = str(e)
             raise
@@ -191,8 +210,11 @@ class URArm:
         return status
 
     def _configure(self, control):
-        """Set the TCP (and payload): at every connect and every start of the control script,
-        whose set_tcp lasts only as long as the script runs."""
+        """Set the TCP (and payload), and read the TCP back: at every connect, every start
+        of the control script and before every moveL. set_tcp and set_payload last only as
+        long as the script runs, and ur_rtde restarts the script by itself when it
+        reconnects after a socket error, with no sign to its caller: the pendant's TCP
+        (often the flange) and payload are back. Raises ConnectionLost."""
         tcp = [float(v) for v in self.settings.tcp_in_flange]
         if not self._rpc(control.setTcp, tcp):
             raise self._lost("the controller refused setTcp (is the RTDE control script running?)")
@@ -200,6 +222,13 @@ class URArm:
             if not self._rpc(control.setPayload, float(self.settings.payload_kg),
                              [float(v) for v in self.settings.payload_cog_m]):
                 raise self._lost("the controller refused setPayload")
+        try:
+            held = [float(v) for v in self._rpc(control.getTCPOffset)]
+        except ConnectionLost:
+            raise
+        if len(held) != 6 or max(abs(a - b) for a, b in zip(held, tcp)) > 1e-6:
+            raise self._lost(f"the controller holds the TCP {np.round(held, 4).tolist()} right after setTcp "
+                             f"{tcp}: its control script restarted in between")
 
     def keep_connected(self) -> str | None:
         """Reconnect if the link is down, or restart the control script once a stop that
@@ -213,11 +242,31 @@ class URArm:
                 return self.connect()
             control, receive = self._control, self._receive
             if state_refusal(self._rpc(receive.getRobotMode), self._rpc(receive.getSafetyMode)) is None \
-                    and not self._rpc(control.isProgramRunning):
+                    and not self._rpc(control.isProgramRunning) and not self._latch_unexplained_end():
                 self._restore_control(control)  # logs its one line
             return None
         finally:
             self._motion_lock.release()
+
+    def _latch_unexplained_end(self) -> bool:
+        """The control script ended with the robot RUNNING and NORMAL. After a protective or
+        emergency stop (seen, so a person cleared it on the pendant) or the watchdog (the
+        kicks were late) ur_arm restarts it. Otherwise a person stopped the program on the
+        pendant, or played another one: latched like the emergency stop until arm(True),
+        so neither the next request nor the recovery timer moves the arm again. True if
+        latched (now or before)."""
+        if self.latched:
+            return True
+        if self._stop_cause:
+            return False
+        if self._kick_refused_gap_s >= 0.8 * self.settings.watchdog_period_s:
+            self._stop_cause = (f"the RTDE watchdog (no kick reached the controller for {self._kick_refused_gap_s:.2f} s "
+                                f"of {self.settings.watchdog_period_s:g} s)")
+            return False
+        self.latched = ("the program stopped on the teach pendant (its Stop, or another program played; the robot "
+                        "is RUNNING with no safety stop)")
+        self._log(f"{self.latched}: latched, nothing moves until ~/arm is called with data: true")
+        return True
 
     def _restore_control(self, control):
         """Re-upload ur_rtde's control script (it ended with a protective or emergency stop,
@@ -232,7 +281,7 @@ class URArm:
                     self._configure(control)
                     self._log(f"control restored{after}: the RTDE control script had ended; re-uploaded it "
                               "and set the TCP again")
-                    self._stop_cause = ""
+                    self._stop_cause, self._kick_refused_gap_s = "", 0.0
                     return
                 time.sleep(self.settings.poll_period_s)
         with self._link_lock:
@@ -242,7 +291,7 @@ class URArm:
             raise ConnectionLost(self.last_error)
         self._log(f"control restored{after}: the RTDE control script had ended and did not restart on "
                   "reuploadScript; reconnected")
-        self._stop_cause = ""
+        self._stop_cause, self._kick_refused_gap_s = "", 0.0
 
     def _kick_loop(self, calls, control):
         """This connection's watchdog kicks, one in flight at a time, never waited on: a
@@ -252,11 +301,17 @@ class URArm:
             time.sleep(self.settings.poll_period_s)
             if not self._kicking or (pending is not None and not pending.done()):
                 continue
-            if pending is not None and pending.exception() is None and pending.result() is False:
-                self._kicking = False  # the script does not run: nothing to kick until setWatchdog
-                pending = None
-                continue
-            pending = calls.submit(control.kickWatchdog)
+            if pending is not None and pending.exception() is None:
+                now = self._clock()
+                gap = now - self._kick_ok_t if self._kick_ok_t is not None else 0.0
+                if pending.result() is False:
+                    self._kicking = False  # the script does not run: nothing to kick until setWatchdog
+                    self._kick_refused_gap_s = gap
+                    pending = None
+                    continue
+                self._kick_gap_s = max(self._kick_gap_s, gap)
+                self._kick_ok_t = now
+            pending = calls.submit(control.kickWatchdog, urgent=True)
 
     def close(self):
         with self._link_lock:
@@ -271,9 +326,15 @@ class URArm:
                 except Exception:
                     pass
 
-    def _drop_locked(self, why: str):
+    def _drop_locked(self, why: str, keep=None):
         if self._calls is not None:
             self._calls.close()
+        # disconnect() what is dropped, so that ur_rtde's own reconnect does not bring it back
+        # (and send again what it was sending); off this thread: it may hang like the link.
+        for interface in (self._control, self._receive):
+            if interface is not None and interface is not keep and hasattr(interface, "disconnect"):
+                threading.Thread(target=_quietly, args=(interface.disconnect,), name="rtde-disconnect",
+                                 daemon=True).start()
         self._control = self._receive = self._calls = None
         self._kicking = False
         self.monitor_only = ""
@@ -339,6 +400,8 @@ class URArm:
             raise ConnectionLost(f"the RTDE control interface is not connected ({self.monitor_only}): switch the "
                                  "pendant to Remote Control (ur_arm retries), until then it only watches the arm")
         if not self._rpc(control.isProgramRunning):
+            if self._latch_unexplained_end():
+                return f"{self.latched} is latched: nothing moves until ~/arm is called with data: true"
             try:
                 self._restore_control(control)
             except ConnectionLost as e:
@@ -396,12 +459,15 @@ class URArm:
         joints = [float(q) for q in self._rpc(control.getInverseKinematics, pose)]
         return MoveResult(True, False, "reachable", joints)
 
-    def move(self, X_task_tcp, speed_mps: float = 0.0, check_only: bool = False) -> MoveResult:
+    def move(self, X_task_tcp, speed_mps: float = 0.0, check_only: bool = False,
+             deadline: float | None = None) -> MoveResult:
         """Move the TCP to `X_task_tcp` along a straight line, or only check it.
 
-        Refusals (box, robot state, limits) return reachable=False before any motion.
-        Raises ConnectionLost when the link fails (before or during the motion) and
-        ValueError for a bad speed."""
+        `deadline` (on this arm's clock, time.monotonic by default): the caller gives up
+        then; a request still waiting is refused, a motion still running is stopped.
+        Refusals (box, robot state, limits, deadline) return reachable=False before any
+        motion. Raises ConnectionLost when the link fails (before or during the motion)
+        and ValueError for a bad speed."""
         speed, speed_note = self.speed_for(speed_mps)
         if self.latched and not check_only:
             return MoveResult(False, False, f"refused: {self.latched} is latched: nothing moves until ~/arm is "
@@ -410,9 +476,16 @@ class URArm:
             if self._request_active:
                 return MoveResult(False, False, "refused: another motion is running on this arm")
             self._request_active = True
-        # A reconnect in progress (keep_connected) holds the motion lock: wait for it.
-        if not self._motion_lock.acquire(timeout=self.settings.connect_timeout_s + 4 * self.settings.call_timeout_s):
+        # A reconnect in progress (keep_connected) holds the motion lock: wait for it, not
+        # past the caller's deadline.
+        wait_s = self.settings.connect_timeout_s + 4 * self.settings.call_timeout_s
+        if deadline is not None:
+            wait_s = max(0.0, min(wait_s, deadline - self._clock()))
+        if not self._motion_lock.acquire(timeout=wait_s):
             self._request_active = False
+            if deadline is not None and self._clock() >= deadline:
+                return MoveResult(False, False, "refused: the request's deadline passed while a reconnect to the "
+                                  "controller ran; nothing moved")
             raise ConnectionLost("a reconnect to the controller did not finish in time")
         try:
             self._stop.clear()
@@ -421,13 +494,17 @@ class URArm:
                 return checked
             control, receive = self._control, self._receive
             return self._run_motion(control, receive, self.to_base(X_task_tcp), speed, speed_note,
-                                    checked.joint_positions)
+                                    checked.joint_positions, deadline)
         finally:
             self._moving.clear()
             self._request_active = False
             self._motion_lock.release()
+            self._idle_pose = None  # watch() takes the pose where this request left the arm
 
-    def _run_motion(self, control, receive, target, speed, speed_note, joints) -> MoveResult:
+    def _late(self, deadline) -> bool:
+        return deadline is not None and self._clock() >= deadline
+
+    def _run_motion(self, control, receive, target, speed, speed_note, joints, deadline=None) -> MoveResult:
         s = self.settings
         start = self._rpc(receive.getActualTCPPose)
         distance_m = float(np.linalg.norm(np.subtract(target[:3], start[:3])))
@@ -435,30 +512,58 @@ class URArm:
         # Trapezoid profile time at the commanded speed, stretched by the speed slider.
         # (A pure reorientation is bounded by the margin.)
         expected_s = (distance_m / speed + speed / s.acceleration_mps2) / slider
-        deadline = self._clock() + expected_s + s.motion_timeout_margin_s
+        limit_s = expected_s + s.motion_timeout_margin_s
         # getAsyncOperationProgress toggles between negative values (-1/-2) from one async
         # operation to the next: "< 0 and different from before" is this motion's end, even
         # for a motion too short to be seen running (ur_rtde's documented contract).
         before = self._rpc(control.getAsyncOperationProgress)
         limit_n = s.contact_force_limit_n
         force_start_n = self._tcp_force_n(receive) if limit_n > 0 else 0.0
-        self._moving.set()
-        if self._stop.is_set() or self.latched:  # a latch between the request's check and here
-            return MoveResult(True, False, f"stopped before the motion started ({self._stopper()})", joints)
+        # The TCP and payload again, right before the motion: ur_rtde may have restarted its
+        # script (and so reset both) on a reconnect of its own since the last request.
+        self._configure(control)
         # The watchdog first: no motion runs without it (removed whenever the script ends).
         if not self._rpc(control.setWatchdog, 1.0 / s.watchdog_period_s):
             why = self._refusal_for_state(control, receive) or "the control script did not accept setWatchdog"
             return MoveResult(False, False, f"refused: {why}; nothing moved", joints)
         self._kicking = True
-        if not self._rpc(control.moveL, target, float(speed), float(s.acceleration_mps2), True):
+        self._kick_gap_s, self._kick_ok_t = 0.0, self._clock()
+        with self._send_lock:  # a stop or latch from here on either prevents moveL or follows it
+            if self._stop.is_set() or self.latched:
+                return MoveResult(True, False, f"stopped before the motion started ({self._stopper()}); nothing moved",
+                                  joints)
+            if self._late(deadline):
+                return MoveResult(False, False, "refused: the request's deadline passed before the motion started "
+                                  "(the caller gave up on it); nothing moved", joints)
+            sent = self._rpc(control.moveL, target, float(speed), float(s.acceleration_mps2), True)
+            if sent:
+                self._moving.set()
+        if not sent:
             why = self._refusal_for_state(control, receive)
             return MoveResult(True, False, f"the controller did not start the motion{': ' + why if why else ''}", joints)
+        deadline_motion = self._clock() + limit_s
+        try:
+            return self._watch_motion(control, receive, target, before, force_start_n, slider, limit_s,
+                                      deadline_motion, deadline, speed_note, joints)
+        finally:
+            self._log(f"motion: largest watchdog kick gap {self._kick_gap_s * 1000:.0f} ms "
+                      f"(watchdog {s.watchdog_period_s * 1000:.0f} ms)")
+
+    def _watch_motion(self, control, receive, target, before, force_start_n, slider, limit_s, deadline_motion,
+                      deadline, speed_note, joints) -> MoveResult:
+        s = self.settings
+        limit_n = s.contact_force_limit_n
         while True:
             time.sleep(s.poll_period_s)
             if self._stop.is_set():
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
                 where, left_m = self._where(receive, target)
                 return MoveResult(True, False, f"motion stopped by {self._stopper()} {where}", joints, False, left_m)
+            if self._late(deadline):
+                self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
+                where, left_m = self._where(receive, target)
+                return MoveResult(True, False, f"motion stopped at the request's deadline (the caller gave up on it) "
+                                  f"{where}", joints, False, left_m)
             if not (self._rpc(control.isConnected) and self._rpc(receive.isConnected)):
                 raise self._lost("the RTDE connection was lost during a motion: the controller's watchdog stops the "
                                  f"arm within {s.watchdog_period_s:g} s of the last kick; check it on the teach pendant")
@@ -479,10 +584,14 @@ class URArm:
             progress = self._rpc(control.getAsyncOperationProgress)
             if progress < 0 and progress != before:
                 break
-            if self._clock() > deadline:
+            # The script writes the end of a motion only from its own threads: a script that
+            # stopped mid-move (the watchdog, the pendant's Stop) leaves "running" for ever.
+            if not self._rpc(control.isProgramRunning):
+                return self._script_ended(receive, target, joints)
+            if self._clock() > deadline_motion:
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
                 where, left_m = self._where(receive, target)
-                return MoveResult(True, False, f"motion did not end within {expected_s + s.motion_timeout_margin_s:.1f} s "
+                return MoveResult(True, False, f"motion did not end within {limit_s:.1f} s "
                                   f"(speed slider {100 * slider:.0f} %); stopped {where}", joints, False, left_m)
         if self._stop.is_set():  # stop() halts the arm itself: the end seen may be its stopL
             where, left_m = self._where(receive, target)
@@ -490,16 +599,80 @@ class URArm:
         actual = self._rpc(receive.getActualTCPPose)
         dp, da = pose_error(actual, target)
         if (dp > s.position_tolerance_m or da > s.orientation_tolerance_deg) and not self._rpc(control.isProgramRunning):
-            self._stop_cause = "the control script ended during a motion"
-            return MoveResult(True, False, f"the RTDE control script ended during the motion {dp * 1000:.0f} mm before "
-                              f"the target (the watchdog heard no kick for {s.watchdog_period_s:g} s, or a program was "
-                              "started or stopped on the pendant); ur_arm restarts it", joints, False, dp)
+            return self._script_ended(receive, target, joints)
+        lapse = self._tcp_lapse(receive, actual)
+        if lapse:
+            return MoveResult(True, False, lapse, joints, False, dp)
         if dp > s.position_tolerance_m or da > s.orientation_tolerance_deg:
             return MoveResult(True, False, f"motion ended {dp * 1000:.1f} mm / {da:.1f} deg from the target "
                               f"(tolerance {s.position_tolerance_m * 1000:g} mm / {s.orientation_tolerance_deg:g} deg)",
                               joints, False, dp)
         return MoveResult(True, True, f"reached the target ({dp * 1000:.1f} mm, {da:.2f} deg){speed_note}", joints,
                           False, dp)
+
+    def _script_ended(self, receive, target, joints) -> MoveResult:
+        """The control script stopped during the motion with no safety stop: the watchdog
+        (the kicks were late) or a person at the pendant, each said so at once."""
+        s = self.settings
+        where, left_m = self._where(receive, target)
+        late_s = max(self._kick_refused_gap_s, self._clock() - self._kick_ok_t if self._kick_ok_t else 0.0)
+        if late_s >= 0.8 * s.watchdog_period_s:
+            self._stop_cause = "the RTDE watchdog"
+            return MoveResult(True, False, f"the RTDE watchdog stopped the motion {where}: no kick reached the "
+                              f"controller for {late_s:.2f} s (watchdog_period_s {s.watchdog_period_s:g}; this "
+                              "process was starved or the link stalled); ur_arm restarts the control script",
+                              joints, False, left_m)
+        self._latch_unexplained_end()
+        return MoveResult(True, False, f"{self.latched} during the motion {where}; nothing moves until ~/arm is called "
+                          "with data: true", joints, False, left_m)
+
+    def _tcp_lapse(self, receive, actual) -> str:
+        """'' if the flange from the joint angles (nominal FK of getActualQ) and the flange
+        from the TCP pose and tcp_in_flange agree; otherwise why not, having latched: the
+        motion put the controller's TCP, not the hand's pinch point, on the target."""
+        s = self.settings
+        X_base_flange = nominal_flange_in_base(self._rpc(receive.getActualQ))
+        held = matrix_to_ur_pose(np.linalg.inv(X_base_flange) @ ur_pose_to_matrix(actual))
+        off_m, off_deg = pose_error(held, list(s.tcp_in_flange))
+        if off_m <= s.tcp_check_tolerance_m and off_deg <= s.tcp_check_tolerance_deg:
+            return ""
+        self.latched = "a motion with the wrong TCP"
+        return (f"the motion ran with the controller's TCP {off_m * 1000:.0f} mm / {off_deg:.1f} deg off tcp_in_flange "
+                f"(the pendant's TCP ~{np.round(held, 4).tolist()}, from the joint angles): ur_rtde restarted its "
+                "control script by itself (a reconnect after a socket error), so the hand is not where the target "
+                "says; latched: check the cell, then call ~/arm with data: true")
+
+    def watch(self) -> str | None:
+        """Between requests (the node calls this at its state rate): the arm must not move.
+        A TCP that drifted more than idle_motion_limit_m since the last request ended is a
+        motion nobody asked for (ur_rtde resending a command after its own reconnect):
+        stopL and latch. Also latches a program stopped on the pendant. Returns the line to
+        log, or None."""
+        if self.busy or self._control is None or self._motion_lock.locked():
+            return None
+        if not self._motion_lock.acquire(blocking=False):
+            return None
+        try:
+            control, receive = self._control, self._receive
+            if control is None:
+                return None
+            pose = self._rpc(receive.getActualTCPPose)
+            if self._idle_pose is None:
+                self._idle_pose = pose
+                return None
+            moved_m = float(np.linalg.norm(np.subtract(pose[:3], self._idle_pose[:3])))
+            if moved_m <= self.settings.idle_motion_limit_m:
+                return None
+            self._rpc(control.stopL, float(self.settings.stop_deceleration_mps2), False)
+            self._idle_pose = None
+            self.latched = "a motion no request asked for"
+            return (f"the arm moved {moved_m * 1000:.0f} mm while no request ran (a command ur_rtde sent again after "
+                    "reconnecting by itself, or the pendant): stopped it (stopL) and latched: nothing moves until "
+                    "~/arm is called with data: true")
+        except ConnectionLost:
+            return None  # the node's reconnect reports it
+        finally:
+            self._motion_lock.release()
 
     def flange_in_base(self) -> np.ndarray:
         """X_base_flange now: the actual TCP pose and tcp_in_flange; monitoring only, after
@@ -555,13 +728,18 @@ class URArm:
             self.latch("a disarm (~/arm false)")
             return "disarmed: every motion is refused until ~/arm is called with data: true"
         was, self.latched = self.latched, ""
+        if was:  # a person armed: a script that ended meanwhile may be restarted
+            self._stop_cause = self._stop_cause or "~/arm after the latch"
         return f"armed: motion allowed{' (cleared: ' + was + ')' if was else ''}"
 
     def stop(self) -> bool:
         """Halt the running motion (stopL). True if a motion was running; its move()
-        then returns success=False."""
+        then returns success=False. A motion whose moveL is being sent is waited for, so
+        the stopL follows it; one not yet sent will not be."""
         self._stop.set()
-        if not self._moving.is_set():
+        with self._send_lock:
+            moving = self._moving.is_set()
+        if not moving:
             return False
         control = self._control
         if control is not None:

@@ -32,8 +32,12 @@ class URArmSettings:
     poll_period_s: float = 0.02          # motion polling, and the watchdog kicks
     # RTDE watchdog (setWatchdog before every motion, kicked every poll_period_s): when the
     # controller hears nothing for this long, it stops ur_rtde's control script and with
-    # it the motion. 0.2 s is 1 cm at 0.05 m/s; ten kicks fit in it.
-    watchdog_period_s: float = 0.2
+    # it the motion. 0.5 s is 2.5 cm at 0.05 m/s; 25 kicks fit in it, so a Python process
+    # that shares its cores (a GIL handoff, a call ahead of the kick) does not trip it.
+    watchdog_period_s: float = 0.5
+    # Between requests the TCP may drift this much before ur_arm calls it a motion nobody
+    # asked for (a command ur_rtde sent again after its own reconnect): stopL and latch.
+    idle_motion_limit_m: float = 0.002
     payload_kg: float = 0.0              # > 0: setPayload(payload_kg, payload_cog_m) on connect
     payload_cog_m: tuple = (0.0, 0.0, 0.0)
     # A motion stops when the magnitude of the controller's TCP force (getActualTCPForce)
@@ -59,7 +63,8 @@ class URArmSettings:
             raise ValueError(f"protective box: workspace_min_m {list(lo)} must be below workspace_max_m {list(hi)} on every axis (3 numbers each, m)")
         for name in ("default_speed_mps", "max_speed_mps", "acceleration_mps2", "stop_deceleration_mps2",
                      "call_timeout_s", "connect_timeout_s", "position_tolerance_m", "orientation_tolerance_deg",
-                     "poll_period_s", "watchdog_period_s", "tcp_check_tolerance_m", "tcp_check_tolerance_deg"):
+                     "poll_period_s", "watchdog_period_s", "tcp_check_tolerance_m", "tcp_check_tolerance_deg",
+                     "idle_motion_limit_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be > 0, got {value}")

@@ -7,6 +7,7 @@ the caller. No rclpy, no ur_rtde import.
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import queue
 import threading
 
@@ -87,17 +88,20 @@ def pose_error(actual, target) -> tuple[float, float]:
 
 
 class CallThread:
-    """One daemon thread per connection running the RTDE calls in order. A call that
-    never returns leaves only this thread blocked (abandoned with the connection); a
-    daemon thread does not keep the process alive."""
+    """One daemon thread per connection running the RTDE calls in order, except that an
+    urgent call (the watchdog's kick) goes ahead of every call still waiting: ur_rtde's
+    interfaces take one call at a time, so a kick cannot overtake a call in flight, only
+    the queue. A call that never returns leaves only this thread blocked (abandoned with
+    the connection); a daemon thread does not keep the process alive."""
 
     def __init__(self):
-        self._calls = queue.Queue()
+        self._calls = queue.PriorityQueue()
+        self._order = itertools.count()
         threading.Thread(target=self._run, name="rtde-calls", daemon=True).start()
 
     def _run(self):
         while True:
-            item = self._calls.get()
+            _, _, item = self._calls.get()
             if item is None:
                 return
             future, fn, args = item
@@ -108,10 +112,10 @@ class CallThread:
             except BaseException as e:  # handed to the caller
                 future.set_exception(e)
 
-    def submit(self, fn, *args) -> concurrent.futures.Future:
+    def submit(self, fn, *args, urgent: bool = False) -> concurrent.futures.Future:
         future = concurrent.futures.Future()
-        self._calls.put((future, fn, args))
+        self._calls.put((0 if urgent else 1, next(self._order), (future, fn, args)))
         return future
 
     def close(self):
-        self._calls.put(None)
+        self._calls.put((2, next(self._order), None))
