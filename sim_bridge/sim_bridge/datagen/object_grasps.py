@@ -314,6 +314,17 @@ def stack_rows(rows):
     return out
 
 
+def table_wrap_rad(table) -> np.ndarray:
+    """(N,) how far each row's distal links wrapped past their stop [rad]
+    (grasp_simulation.wrap_angle_rad, from the recorded coupler angles; 0 without them)."""
+    names = [str(n) for n in table["finger_joint_names"]]
+    if not {"left_coupler", "right_coupler"} <= set(names):
+        return np.zeros(len(table["mode"]))
+    a = table["finger_joint_angles"]
+    wrap = np.minimum(-a[:, names.index("left_coupler")], -a[:, names.index("right_coupler")])
+    return np.nan_to_num(np.maximum(wrap, 0.0)).astype(np.float64)
+
+
 def load_table(path):
     """A grasp table as a dict of numpy arrays (strings as str)."""
     with np.load(path) as z:

@@ -14,6 +14,8 @@ from pydrake.geometry import (
 )
 from pydrake.multibody.plant import CoulombFriction
 
+from .transmission import DRIVES, LOCK_DAMPING_NM_S_PER_RAD, LOCK_STIFFNESS_NM_PER_RAD
+
 
 @dataclass
 class SimSettings:
@@ -41,12 +43,24 @@ class SimSettings:
     max_force_n: float = 200.0  # ramp cap; a score equal to this means "held to the cap"
     departure_travel_m: float = 0.02  # COM travel that ends a ramp ("left the hand")
     resistance_window_s: float = 0.02  # momentum window for the resisted force
+    # The 2F-85's transmission (physics.transmission): "self_locking" holds what it
+    # gripped as the real screw drive does; "backdrivable" is the motor alone (opens at
+    # the grip force), the drive of every label and cell before the lock.
+    drive: str = "backdrivable"
+    lock_stiffness_nm_per_rad: float = LOCK_STIFFNESS_NM_PER_RAD
+    lock_damping_nm_s_per_rad: float = LOCK_DAMPING_NM_S_PER_RAD
 
     @classmethod
     def for_labels(cls, **overrides) -> "SimSettings":
         """dt 1 ms, 400 N/s: scores within 2% of dt 0.5 ms (bar a capped direction) and
         within 2.5% of 200 N/s, except pushing along the closing axis (8%) (README)."""
         return cls(**{"time_step_s": 1e-3, "force_ramp_rate_n_s": 400.0, **overrides})
+
+    @classmethod
+    def from_record(cls, record: dict) -> "SimSettings":
+        """Settings as recorded with data (a grasp table's `sim_settings` JSON): data
+        recorded before the drive was a setting was simulated with the back-drivable one."""
+        return cls(**{"drive": "backdrivable", **record})
 
     def effective_relaxation_time_s(self) -> float:
         if self.relaxation_time_s is not None:
@@ -62,6 +76,10 @@ class SimSettings:
             raise ValueError(f"time_step_s {self.time_step_s}: use (0, 0.01]")
         if self.dynamic_friction > self.static_friction:
             raise ValueError("dynamic friction must not exceed static friction")
+        if self.drive not in DRIVES:
+            raise ValueError(f"drive {self.drive!r}: use {' or '.join(map(repr, DRIVES))}")
+        if not (self.lock_stiffness_nm_per_rad > 0 and self.lock_damping_nm_s_per_rad >= 0):
+            raise ValueError("lock stiffness must be > 0 and its damping >= 0")
 
 
 

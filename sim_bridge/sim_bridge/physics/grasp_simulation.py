@@ -7,7 +7,8 @@ at the object's COM along ±x, ±y, ±z of the TCP frame and records the force [
 which the object leaves the hand (see disturbance_rejection).
 
 The hand's flange is welded at the world origin; the object is a free body. Everything
-is one Drake diagram (plant + scene graph + `GripForceController` + the ramp).
+is one Drake diagram (plant + scene graph + `GripForceController` + the ramp, and with
+the self-locking drive its `TransmissionLock`, engaged once the hand has settled).
 """
 
 from __future__ import annotations
@@ -24,10 +25,15 @@ from pydrake.systems.framework import DiagramBuilder
 from . import hand_model
 from .actuators import GripForceController, driver_torque_nm
 from .contact import SimSettings, proximity_properties
+from .transmission import add_transmission_lock
 from .disturbance_rejection import DIRECTIONS_TCP, ForceRampDisturbance, measure_departure_force
 from .objects import ObjectSpec, procedural_object
 
 MODES = ("power", "precision", "none")
+# A distal link wrapped past its stop: the coupler leaves 0 (where the spring holds it in a
+# parallel pinch) by more than this. A power grasp is a wrap (the paper's enveloping grasp).
+WRAP_MIN_RAD = 0.05
+LOCKED_HOLD_S = 0.3  # squeeze calibration: how long the locked drive holds before reading
 
 
 @dataclass
@@ -43,6 +49,7 @@ class GraspOutcome:
     wall_time_s: float = 0.0
     departed: np.ndarray = field(default_factory=lambda: np.zeros(6, bool))  # False = capped
     reason: str = ""  # why not grasped
+    wrap_rad: float = 0.0  # how far both distal links wrapped past their stop (wrap_angle_rad)
 
     @property
     def min_score_n(self) -> float:
@@ -77,6 +84,12 @@ class GraspSimulator:
         builder.Connect(ctrl.get_output_port(), plant.get_actuation_input_port())
         self.ramp = builder.AddSystem(ForceRampDisturbance(self.object_body.index(), self.object.com_m))
         builder.Connect(self.ramp.get_output_port(), plant.get_applied_spatial_force_input_port())
+        # The self-locking drive engages once the hand has settled on the object (evaluate).
+        self.lock = (add_transmission_lock(
+            builder, plant, self.hand, settings.time_step_s, driver_torque_nm(settings.grip_force_n),
+            stiffness_nm_per_rad=settings.lock_stiffness_nm_per_rad,
+            damping_nm_s_per_rad=settings.lock_damping_nm_s_per_rad)
+            if settings.drive == "self_locking" else None)
         self.diagram = builder.Build()
         self.plant, self.scene_graph = plant, scene_graph
         self.simulator = Simulator(self.diagram)
@@ -125,6 +138,14 @@ class GraspSimulator:
                 return True
         return False
 
+    def collides(self, X_object_tcp: np.ndarray) -> bool:
+        """Whether the open hand touches the object at `X_object_tcp` (no simulation)."""
+        root = self.simulator.get_mutable_context()
+        root.SetTimeStateAndParametersFrom(self._default)
+        X_W_O = self.X_W_tcp @ RigidTransform(np.asarray(X_object_tcp, float)).inverse()
+        self.plant.SetFreeBodyPose(self.plant.GetMyContextFromRoot(root), self.object_body, X_W_O)
+        return self._initial_collision(root)
+
     def squeeze_force_n(self, root) -> float:
         """Force [N] the right finger presses on the object along the closing axis."""
         pc = self.plant.GetMyContextFromRoot(root)
@@ -165,6 +186,8 @@ class GraspSimulator:
         s = self.settings
         root = self.simulator.get_mutable_context()
         root.SetTimeStateAndParametersFrom(self._default)
+        if self.lock is not None:
+            self.lock.release(root)
         pc = self.plant.GetMyContextFromRoot(root)
         X_W_O = self.X_W_tcp @ RigidTransform(np.asarray(X_object_tcp, float)).inverse()
         self.plant.SetFreeBodyPose(pc, self.object_body, X_W_O)
@@ -217,15 +240,17 @@ class GraspSimulator:
         left = any(l.startswith("left_") for l in links)
         right = any(l.startswith("right_") for l in links)
         grasped = left and right and not reason
+        if grasped and self.lock is not None:
+            self.lock.engage(root)  # the fingers have stalled on the object: the screw holds
+        angles = self.finger_joint_angles(root)
+        wrap = wrap_angle_rad(angles)
         if grasped:
-            inner = set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS)
-            mode = "power" if links & inner else "precision"
+            mode = classify_mode(links, wrap)
         else:
             mode = "none"
             if not reason:
                 reason = "object not held between both fingers" if links else "no contact"
         X_ot = self.X_object_tcp(root)
-        angles = self.finger_joint_angles(root)
         scores = np.zeros(6)
         departed = np.zeros(6, bool)
         sim_time = root.get_time()
@@ -244,17 +269,36 @@ class GraspSimulator:
             grasped=grasped, mode=mode, X_object_tcp_settled=X_ot, scores_n=scores,
             contact_links=tuple(sorted(links)), num_contacts=n_contacts, finger_joint_angles=angles,
             sim_time_s=sim_time, wall_time_s=time.perf_counter() - wall0,
-            departed=departed, reason=reason)
+            departed=departed, reason=reason, wrap_rad=wrap)
+
+
+def wrap_angle_rad(finger_joint_angles: dict) -> float:
+    """How far the distal links wrapped past their stop [rad], the smaller of the two
+    fingers' (an envelope needs both): the coupler sits at 0 while the spring holds the pad
+    parallel and turns negative as the distal link wraps."""
+    return max(0.0, min(-finger_joint_angles.get("left_coupler", 0.0),
+                        -finger_joint_angles.get("right_coupler", 0.0)))
+
+
+def classify_mode(contact_links, wrap_rad: float) -> str:
+    """A held grasp's mode: "power" when the object touches the palm or a proximal link
+    and both distal links wrapped past their stop (>= WRAP_MIN_RAD), else "precision"."""
+    inner = set(hand_model.PALM_LINKS) | set(hand_model.PROXIMAL_LINKS)
+    return "power" if set(contact_links) & inner and wrap_rad >= WRAP_MIN_RAD else "precision"
 
 
 def measure_squeeze_force_n(width_m: float = 0.05, settings: SimSettings | None = None) -> float:
     """Grip-force calibration: close on a free 0.5 kg box `width_m` wide (along y),
-    centred between the pads, and return the settled squeeze force [N]."""
+    centred between the pads, and return the settled squeeze force [N] (with the
+    self-locking drive: locked, LOCKED_HOLD_S after settling)."""
     box = procedural_object("box", (0.03, width_m, 0.03), mass_kg=0.5)
     sim = GraspSimulator(box, settings)
     root, reason = sim.close(np.eye(4))
     if reason:
         raise RuntimeError(f"calibration grasp failed: {reason}")
+    if sim.lock is not None:  # the squeeze the locked drive keeps, LOCKED_HOLD_S later
+        sim.lock.engage(root)
+        sim.simulator.AdvanceTo(root.get_time() + LOCKED_HOLD_S)
     return sim.squeeze_force_n(root)
 
 

@@ -17,6 +17,7 @@ Cost is this process tree's CPU seconds per held grasp.  The last line is
 """
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import sys
@@ -31,6 +32,7 @@ from ..datagen.cli import sim_settings
 from ..datagen.object_grasps import load_table
 from ..datagen.object_sources import object_from_table
 from ..parallel import make_executor, run_tasks
+from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from ..physics.gravity_projection import gravity_rejection_score
 
@@ -50,7 +52,7 @@ class StudyTask:
 
 def run_study_task(task: StudyTask):
     t = load_table(task.table_path)
-    base = json.loads(str(t["sim_settings"]))
+    base = dataclasses.asdict(SimSettings.from_record(json.loads(str(t["sim_settings"]))))
     settings = sim_settings([f"{k}={v}" for k, v in base.items() if v is not None] + list(task.overrides))
     c0 = time.process_time()
     sim = GraspSimulator(object_from_table(t, task.mesh_dirs), settings)

@@ -44,7 +44,7 @@ def run_object_task(task: ObjectTask):
     try:
         table = load_table(task.table_path)
         sim = GraspSimulator(object_from_table(table, task.mesh_dirs),
-                             SimSettings(**json.loads(str(table["sim_settings"]))))
+                             SimSettings.from_record(json.loads(str(table["sim_settings"]))))
         counts = {}
         for i in task.candidates:
             X = table["X_object_tcp_candidate"][i]

@@ -22,6 +22,7 @@ Last line: `symmetry_spearman_f_g=...`.
 """
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import sys
@@ -36,6 +37,7 @@ from ..datagen.object_grasps import load_table
 from ..datagen.object_sources import object_from_table
 from ..datagen.object_symmetry import cached_symmetry_transforms, copy_scores, is_mirror, replicate
 from ..parallel import make_executor, run_tasks, task_seed
+from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .label_settings_study import compare, f_g_matrix, gravity_directions_tcp
 
@@ -52,7 +54,7 @@ class StudyTask:
 
 def run_study_task(task: StudyTask):
     t = load_table(task.table_path)
-    base = json.loads(str(t["sim_settings"]))
+    base = dataclasses.asdict(SimSettings.from_record(json.loads(str(t["sim_settings"]))))
     sim = GraspSimulator(object_from_table(t, task.mesh_dirs),
                          sim_settings([f"{k}={v}" for k, v in base.items() if v is not None]))
     out = []

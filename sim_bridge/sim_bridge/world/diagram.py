@@ -1,7 +1,8 @@
 """The cell as one Drake diagram: plant (gravity, SAP, the paper's contact parameters),
 scene graph, the table, the floating hand (the 2F-85, or another of physics.hands:
 WorldSettings.hand) and its finger servo (physics.actuators.FingerServoSystem, driven as
-finger_drives says)."""
+finger_drives says), with the 2F-85's self-locking transmission when SimSettings.drive
+says so (physics.transmission)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,11 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
-from ..physics.actuators import FingerServoSystem
+from ..physics.actuators import FingerServoSystem, driver_torque_nm
 from ..physics.hands import hand_spec
 from ..physics.contact import proximity_properties
 from ..physics.scenes import TABLE_FRICTION, TABLE_HEIGHT_M, VOLUME_SIZE_M
+from ..physics.transmission import add_transmission_lock
 from .config import WorldSettings
 from .finger_drives import DRIVES
 
@@ -39,6 +41,9 @@ class WorldDiagram:
     hand_spec: object  # physics.hands.HandSpec
     drive: object  # finger_drives.FingerDrive
     finger_side_of: dict  # finger collision geometry id value -> "left" or "right"
+    # physics.transmission.TransmissionLock of a self-locking 2F-85 (SimSettings.drive);
+    # None for the back-drivable drive and the Panda (its fingers are not underactuated)
+    transmission_lock: object = None
 
     def release(self) -> None:
         """Let the garbage collector free this diagram; call only when discarding it (no
@@ -90,6 +95,10 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
     servo = builder.AddSystem(FingerServoSystem(plant, hand, s.time_step_s, drive.kp, drive.open_joint))
     builder.Connect(plant.get_state_output_port(), servo.get_input_port())
     builder.Connect(servo.get_output_port(), plant.get_actuation_input_port())
+    lock = (add_transmission_lock(builder, plant, hand, s.time_step_s, driver_torque_nm(s.grip_force_n),
+                                  stiffness_nm_per_rad=s.lock_stiffness_nm_per_rad,
+                                  damping_nm_s_per_rad=s.lock_damping_nm_s_per_rad)
+            if s.drive == "self_locking" and settings.hand == "2f85" else None)
     diagram = builder.Build()
     link_of = {}
     for bi in plant.GetBodyIndices(hand.model_instance):
@@ -100,4 +109,4 @@ def build_world_diagram(objects, settings: WorldSettings) -> WorldDiagram:
             if link in spec.finger_links}
     return WorldDiagram(diagram, plant, scene_graph, hand, plant.GetBodyByName(spec.mount_body, hand.model_instance),
                         bodies, servo, link_of, frozenset(link_of), frozenset(side),
-                        frozenset(plant.GetBodyIndices(hand.model_instance)), spec, drive, side)
+                        frozenset(plant.GetBodyIndices(hand.model_instance)), spec, drive, side, lock)

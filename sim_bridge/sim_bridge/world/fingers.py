@@ -11,7 +11,12 @@ as the real gripper reports its motor position, not the pad gap; the Panda its f
 positions. Whether the fingers move, reached the target or stopped on something comes
 from a stall detection.
 
-No locking here: SimWorld calls it under its lock."""
+The 2F-85's drive self-locks (physics.transmission, SimSettings.drive "self_locking"):
+once the fingers stop on something ("blocked", the gripper's gOBJ 1/2) the transmission
+locks, so a load that pulls them open meets the lock, not the motor's current limit; any
+new command (an open) releases it.
+
+No thread locking here: SimWorld calls it under its lock."""
 
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ class Fingers:
     def __init__(self, model, simulator, grip_force_n: float):
         self._model, self._simulator = model, simulator
         self._drive = model.drive
+        self._lock = getattr(model, "transmission_lock", None)
         self._command = None
         self._stall_since_s = self._blocked_angle = None
         model.finger_servo.set_command(self._servo_context(), self._drive.open_joint, 1.0,
@@ -60,6 +66,8 @@ class Fingers:
         if cmd is None or (cmd.target_width_m, cmd.speed_mps, cmd.force_n) != (target_width_m, speed_mps, force_n):
             self._command = FingerCommand(target_width_m, speed_mps, force_n, self._time_s())
             self._stall_since_s = self._blocked_angle = None
+            if self._lock is not None:  # the motor drives again: the screw turns
+                self._lock.release(self._simulator.get_mutable_context())
             ctx = self._servo_context()
             if cmd is None:  # first command: start the reference where the fingers are
                 self._model.finger_servo.set_reference(ctx, self.driver_angle_rad())
@@ -73,8 +81,13 @@ class Fingers:
         return self._command is not None and not self._command.held
 
     def hold(self) -> None:
-        """Stop where they are (the 2F-85's rGTO = 0; its drive self-locks)."""
+        """Stop where they are (the 2F-85's rGTO = 0; its drive self-locks). Locked on an
+        object, the transmission keeps the grip as it is."""
         if self._command is None:
+            return
+        if self.locked():
+            self._command = FingerCommand(self._command.target_width_m, self._command.speed_mps,
+                                          self._command.force_n, self._command.t_start_s, held=True)
             return
         angle = self.driver_angle_rad()
         ctx = self._servo_context()
@@ -97,7 +110,8 @@ class Fingers:
         return float(self._model.plant.GetVelocities(self._plant_context())[iv])
 
     def update_stall(self) -> None:
-        """After every time step: when the driver stalled."""
+        """After every time step: when the driver stalled; stopped on something, a
+        self-locking transmission locks."""
         if self._command is None:
             return
         if abs(self._driver_rate()) < self._drive.stall_rate:
@@ -105,6 +119,13 @@ class Fingers:
                 self._stall_since_s = self._time_s()
         else:
             self._stall_since_s = None
+        if (self._lock is not None and self._stall_since_s is not None and not self._command.held
+                and not self.locked() and self.status()[1] == "blocked"):
+            self._lock.engage(self._simulator.get_mutable_context())
+
+    def locked(self) -> bool:
+        """The self-locking transmission holds the fingers (False for a back-drivable drive)."""
+        return self._lock is not None and self._lock.engaged(self._simulator.get_context())
 
     def status(self) -> tuple:
         """(width_m, state) with state 'moving', 'at_target' or 'blocked' (stopped short

@@ -176,6 +176,8 @@ class SimWorld:
             for k, v in checkpoint.world.items():
                 setattr(self, k, copy.copy(v))
             vars(self._fingers).update(copy.copy(checkpoint.fingers))
+            if self._model.transmission_lock is not None:
+                self._model.transmission_lock.sync_gains(self.simulator.get_context())
             self._resting = checkpoint.resting
             if self._resting is not None:
                 self._resting.restore(checkpoint.resting_state, self._scene_graph_context())
@@ -345,6 +347,12 @@ class SimWorld:
         """Stop the fingers where they are (the 2F-85's rGTO = 0; its drive self-locks)."""
         with self.lock:
             self._fingers.hold()
+
+    def fingers_locked(self) -> bool:
+        """True while a self-locking transmission holds the fingers (stopped on something;
+        SimSettings.drive "self_locking"); never for a back-drivable drive."""
+        with self.lock:
+            return self._fingers.locked()
 
     def driver_angle_rad(self) -> float:
         with self.lock:
