@@ -1,10 +1,14 @@
-"""Dataset generation command (paper Sec. III): `ros2 run sim_bridge datagen objects|perturb|scenes|recipes`.
+"""Dataset generation command (paper Sec. III): `ros2 run sim_bridge datagen objects|perturb|rescore|wrap|scenes|recipes`.
 
   objects  per-object grasp tables: antipodal candidates, closed on in the Drake
            grasp simulation, 6-direction disturbance-rejection scores.
   perturb  held candidates of those tables moved ~15 mm (across the pads or shallower)
            and closed on again: rows near the edge of holding, which the scene stage
            labels with the tables' own (perturbed_grasps).
+  rescore  a directory of tables simulated again under other settings, e.g. the
+           self-locking drive (rescored_tables).
+  wrap     held precision candidates turned and moved toward the palm, closed again:
+           power grasps made as the paper makes them (power_grasps).
   scenes   packed / pile scenes on a table from those tables: TSDF from rendered
            depth, grasps projected and collision-filtered, gravity projection,
            sparse voxel labels.
@@ -36,7 +40,7 @@ from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings
 from .object_grasps import ObjectChunk, ObjectStageStore, RestTask, run_chunk, run_rest_task
 from .object_sources import mesh_sources, procedural_sources, read_name_list
-from . import perturbed_grasps, scene_recipes
+from . import perturbed_grasps, power_grasps, rescored_tables, scene_recipes
 from .scene_dataset import OBJECT_COUNTS, run_scene_stage
 
 
@@ -216,6 +220,34 @@ def main(argv=None):
     pt.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     pt.add_argument("--no-progress", action="store_true")
 
+    rsc = sub.add_parser("rescore", help="a directory of grasp tables simulated again under other settings "
+                                         "(e.g. the self-locking drive): same candidates, new scores")
+    rsc.add_argument("--objects", required=True, help="output directory of the objects stage to rescore")
+    rsc.add_argument("--out", required=True, help="new output directory (gets objects/; resumable)")
+    rsc.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
+    rsc.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
+                     help="SimSettings for the new tables, over the label settings (dt 1 ms), e.g. drive=self_locking")
+    rsc.add_argument("--names", default=None, metavar="FILE", help="only the objects named in FILE")
+    rsc.add_argument("--max-held-rows", type=int, default=0,
+                     help="a seeded sample of each table's held rows (a gated study; default 0: every row)")
+    rsc.add_argument("--seed", type=int, default=0)
+    rsc.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    rsc.add_argument("--no-progress", action="store_true")
+
+    wr = sub.add_parser("wrap", help="held precision candidates turned and moved toward the palm, closed again: "
+                                     "power grasps made as the paper makes them (rows to objects/toward_palm/)")
+    wr.add_argument("--objects", required=True, help="output directory of the objects (or rescore) stage")
+    wr.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
+    wr.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
+                    help="SimSettings over the label settings (dt 1 ms), e.g. drive=self_locking")
+    wr.add_argument("--names", default=None, metavar="FILE", help="only the objects named in FILE")
+    wr.add_argument("--per-object", type=int, default=32, help="held precision candidates per object")
+    wr.add_argument("--max-turn-deg", type=float, default=20.0, help="turn about the closing and approach axes, drawn in ±this")
+    wr.add_argument("--max-depth-mm", type=float, default=40.0, help="deepest move toward the palm")
+    wr.add_argument("--seed", type=int, default=0)
+    wr.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    wr.add_argument("--no-progress", action="store_true")
+
     sc = sub.add_parser("scenes", help="scenes with TSDF and voxel labels from grasp tables")
     common(sc)
     sc.add_argument("--objects", required=True, help="output directory of the objects stage (holds objects/)")
@@ -276,6 +308,8 @@ def _run(p, args):
         return _run_recipes(args)
     if args.stage == "perturb":
         return _run_perturb(p, args)
+    if args.stage in ("rescore", "wrap"):
+        return _run_rescore_or_wrap(p, args)
     if args.stage == "objects":
         try:
             sources = _object_sources(args)
@@ -317,6 +351,34 @@ def _run_perturb(p, args):
     print(f"perturb: objects_done={s['done']} kept={s['kept']} error={len(s['errors'])} "
           f"candidates={s['tried']} held_fraction={held}")
     return 1 if s["errors"] else 0
+
+
+def _run_rescore_or_wrap(p, args):
+    try:
+        settings = _label_settings(args.sim_setting)
+        names = read_name_list(args.names) if args.names else None
+        if args.stage == "rescore":
+            s = rescored_tables.run_rescore_stage(args.objects, args.out, args.meshes, settings, args.max_held_rows,
+                                                  args.seed, args.workers, names, progress=not args.no_progress)
+            line = f"rescore: objects_done={s['done']} kept={s['kept']} rows_simulated={s['simulated']} held={s['held']}"
+        else:
+            s = power_grasps.run_wrap_stage(args.objects, args.meshes, settings, args.per_object, args.max_turn_deg,
+                                            args.max_depth_mm / 1000, seed=args.seed, workers=args.workers,
+                                            names=names, progress=not args.no_progress)
+            line = (f"wrap: objects_done={s['done']} kept={s['kept']} closings={s['tried']} held={s['held']} "
+                    f"power={s['power']}")
+    except (FileNotFoundError, ObjectError, ValueError) as e:
+        p.error(str(e))
+    for e in s["errors"]:
+        print(e)
+    print(f"{line} error={len(s['errors'])}")
+    return 1 if s["errors"] else 0
+
+
+def _label_settings(overrides) -> SimSettings:
+    """The label settings (dt 1 ms, 400 N/s) with "key=value" overrides."""
+    base = [f"{k}={v}" for k, v in dataclasses.asdict(SimSettings.for_labels()).items() if v is not None]
+    return sim_settings(base + list(overrides))
 
 
 def validation_names_of(model_path):

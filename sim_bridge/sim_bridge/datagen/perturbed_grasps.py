@@ -38,6 +38,9 @@ from .object_sources import object_from_table
 DIRECTIONS = {"across+": (1.0, 0.0, 0.0), "across-": (-1.0, 0.0, 0.0), "shallower": (0.0, 0.0, -1.0)}
 DIRECTIONS_TCP = np.array(list(DIRECTIONS.values()))
 DIRECTORY = "perturbed"
+# Rows appended after a table's own for labelling: these (the edge of holding) and
+# power_grasps' (toward the palm), in this order.
+EXTRA_ROW_DIRECTORIES = (DIRECTORY, "toward_palm")
 
 
 @dataclass(frozen=True)
@@ -82,7 +85,7 @@ def run_perturb_task(task: PerturbTask):
     try:
         table = load_table(task.table_path)
         parents, shifts = plan(table, task.per_object, task.shift_m, task.seed)
-        settings = SimSettings(**json.loads(str(table["sim_settings"])))
+        settings = SimSettings.from_record(json.loads(str(table["sim_settings"])))
         sim = GraspSimulator(object_from_table(table, task.mesh_dirs), settings)
         rows = [dict(evaluate_candidate(sim, shifted(table["X_object_tcp_candidate"][i], d, 1.0)),
                      rest_pose=np.int16(table["rest_pose"][i])) for i, d in zip(parents, shifts)]
@@ -138,16 +141,19 @@ def run_perturb_stage(objects_out, mesh_dirs, per_object=64, shift_m=0.015, seed
 
 
 def load_labelling_table(objects_dir, name):
-    """The grasp table `name` with its perturbed rows (if any) appended after its own:
-    what the scene stage labels from. `table_rows` says where the table's own rows end
-    (a scene's `label_grasp` past it names a perturbed row)."""
+    """The grasp table `name` with its perturbed and toward-the-palm rows (if any)
+    appended after its own: what the scene stage labels from. `table_rows` says where
+    the table's own rows end (a scene's `label_grasp` past it names an appended row)."""
     table = load_table(pathlib.Path(objects_dir) / f"{name}.npz")
-    n = len(table["grasped"])
-    table["table_rows"] = n
-    path = perturbed_path(objects_dir, name)
-    if not path.exists():
-        return table
-    extra = load_table(path)
+    table["table_rows"] = len(table["grasped"])
+    for directory in EXTRA_ROW_DIRECTORIES:
+        path = pathlib.Path(objects_dir) / directory / f"{name}.npz"
+        if path.exists():
+            _append_rows(table, load_table(path))
+    return table
+
+
+def _append_rows(table, extra):
     for key in (k for k in ROW_KEYS if k in table):  # strings (reasons) keep the wider width of the two
         cast = extra[key] if table[key].dtype.kind == "U" else extra[key].astype(table[key].dtype)
         table[key] = np.concatenate([table[key], cast])
