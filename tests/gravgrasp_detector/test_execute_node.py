@@ -44,11 +44,12 @@ def stack(ros_node, ros_process, tmp_path, execute_params):
     emulator = ros_process("robotiq_driver", "gripper_emulator",
                            args=["--link", link, "--object-width-m", "0.05", "--activation-time-s", "0.1"])
     # The arm: a MoveToPose server in this process that records targets; `gate` can hold a motion.
-    arm = {"targets": [], "gate": threading.Event()}
+    arm = {"targets": [], "gate": threading.Event(), "deadlines": []}
     arm["gate"].set()
 
     def move(request, response):
         arm["targets"].append(request.target.pose.position.z)
+        arm["deadlines"].append(request.deadline.sec + request.deadline.nanosec * 1e-9)
         arm["gate"].wait(20)
         response.reachable = response.success = True
         response.message = "moved"
@@ -243,3 +244,31 @@ def test_arm_service_that_vanishes_mid_move_is_an_arm_fault_then_recovers(stack,
     arm_executor(stack)
     again = call(client, execute_request(top_down_grasp()))
     assert again.result_code == R.SUCCESS, again.message
+
+
+@pytest.mark.parametrize("execute_params", [{"gripper_empty_closed_m": 0.0, "max_tsdf_age_s": 0.0, "arm_timeout_s": 2.0}])
+def test_a_motion_the_executor_gives_up_on_carries_its_deadline_and_is_stopped(stack):
+    """Path 3 of the arm adapter's matrix: a request waits in the adapter (a reconnect)
+    past the executor's timeout. The deadline travels with it, and giving up sends
+    stop_motion, so the arm cannot move later for a grasp nobody waits for."""
+    from std_srvs.srv import Trigger
+    node, arm = stack["node"], stack["arm"]
+    stops = []
+
+    def stop(request, response):
+        stops.append(time.monotonic())
+        response.success = True
+        return response
+
+    node.create_service(Trigger, "stop_motion", stop, callback_group=ReentrantCallbackGroup())
+    arm_executor(stack)
+    arm["gate"].clear()  # the pre-grasp motion does not end
+    t_ros = node.get_clock().now().nanoseconds * 1e-9
+    t0 = time.monotonic()
+    try:
+        result = call(stack["client"], execute_request(top_down_grasp()), 30)
+    finally:
+        arm["gate"].set()
+    assert result.result_code == R.TIMEOUT and "stop_motion sent" in result.message, result.message
+    assert stops and stops[0] - t0 < 5.0, "the executor gave up without stop_motion"
+    assert arm["deadlines"] and abs(arm["deadlines"][0] - (t_ros + 2.0)) < 1.0, (arm["deadlines"], t_ros)

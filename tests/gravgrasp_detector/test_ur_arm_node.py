@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+import rclpy.duration
 from geometry_msgs.msg import PoseStamped
 from gravgrasp_msgs.msg import Grasp
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
@@ -100,6 +101,19 @@ def test_lost_link_is_answered_then_the_node_reconnects(served):
     assert wait_until(lambda: ur.connects >= 2 and served["arm_node"].arm.connected, 10), "no reconnect"
     again = call(move, move_request(0.15, 0.15, 0.30, speed=0.25))
     assert again.success, again.message
+
+
+def test_a_stale_request_is_refused_and_a_late_motion_stopped_by_its_deadline(served):
+    ur, node = served["ur"], served["node"]
+    move = node.create_client(MoveToPose, "move_to_pose")
+    stale = move_request(0.15, 0.15, 0.25)
+    stale.deadline = (node.get_clock().now() - rclpy.duration.Duration(seconds=1.0)).to_msg()
+    out = call(move, stale)
+    assert not out.reachable and "deadline passed" in out.message and ur.called("moveL") == [], out.message
+    slow = move_request(0.15, 0.15, 0.40, speed=0.02)  # 4 s at time_scale 0.3
+    slow.deadline = (node.get_clock().now() + rclpy.duration.Duration(seconds=0.8)).to_msg()
+    cut = call(move, slow)
+    assert not cut.success and "stopped at the request's deadline" in cut.message, cut.message
 
 
 def test_emergency_stop_topic_halts_and_latches_until_armed(served):

@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
@@ -37,7 +38,9 @@ from .tsdf_node import VOLUME_QOS
 class ServiceArm:
     """execution.executor.Arm over the MoveToPose service. A service that leaves the ROS
     graph during a move (the adapter crashed or was stopped) raises ArmUnavailable once
-    it has been gone for `gone_s`, instead of waiting out the whole motion timeout."""
+    it has been gone for `gone_s`, instead of waiting out the whole motion timeout. The
+    request carries its deadline (now + the motion's timeout), and giving up on it calls
+    stop_motion too: the arm must not move later for a request nobody waits for."""
 
     POLL_S = 0.1
 
@@ -57,6 +60,7 @@ class ServiceArm:
         if not self.client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
             raise ArmTimeout(f"arm service {self.client.srv_name} is not available")
         request = MoveToPose.Request(speed_mps=float(speed_mps), check_only=False)
+        request.deadline = (self.node.get_clock().now() + Duration(seconds=float(timeout_s))).to_msg()
         request.target.header.frame_id = self.frame_id
         pose_msg_from_matrix(X_task_tcp, request.target.pose)
         done = threading.Event()
@@ -68,13 +72,15 @@ class ServiceArm:
             now = time.monotonic()
             if now >= deadline:
                 future.cancel()
-                raise ArmTimeout(f"arm motion timed out after {timeout_s:.0f} s")
+                self.stop()
+                raise ArmTimeout(f"arm motion timed out after {timeout_s:.0f} s; stop_motion sent")
             if self.client.service_is_ready():
                 gone_since = None
             elif gone_since is None:
                 gone_since = now
             elif now - gone_since >= self.gone_s:
                 future.cancel()
+                self.stop()  # a service back under the same name (a restarted adapter) must not go on
                 raise ArmUnavailable(f"service {self.client.srv_name} left the ROS graph "
                                      f"{now - gone_since:.1f} s ago without answering")
         response = future.result()

@@ -196,6 +196,9 @@ class URArmNode(Node):
     def _publish_state(self):
         if not self.arm.receiving:
             return
+        unasked = self.arm.watch()  # between requests the arm must not move
+        if unasked:
+            self.get_logger().error(unasked)
         stamp = self.get_clock().now().to_msg()
         try:
             X_base = self.arm.flange_in_base()
@@ -246,7 +249,8 @@ class URArmNode(Node):
         response.distance_left_m = math.nan  # nothing moved, until a motion says otherwise
         try:
             X = self._target(request.target)
-            result = self.arm.move(X, float(request.speed_mps), check_only=bool(request.check_only))
+            result = self.arm.move(X, float(request.speed_mps), check_only=bool(request.check_only),
+                                   deadline=self._deadline(request.deadline))
         except ValueError as e:
             response.reachable, response.success, response.message = False, False, f"rejected: {e}"
             return response
@@ -261,6 +265,13 @@ class URArmNode(Node):
         if not request.check_only and not result.success:
             self.get_logger().warn(f"move_to_pose: {result.message}")
         return response
+
+    def _deadline(self, stamp):
+        """MoveToPose's deadline (ROS time; 0 = none) on URArm's clock (time.monotonic)."""
+        deadline_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if deadline_ns == 0:
+            return None
+        return time.monotonic() + (deadline_ns - self.get_clock().now().nanoseconds) * 1e-9
 
     def _on_stop(self, request, response):
         response.success = self.arm.stop()
