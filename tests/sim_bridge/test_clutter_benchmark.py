@@ -695,7 +695,7 @@ def _legacy_config(tmp_path):
     import dataclasses as dc
     from sim_bridge.benchmark.protocol import LEGACY_EXECUTION, PROCEDURAL_SEED, Protocol as P
     protocol = {k: v for k, v in dc.asdict(P()).items()
-                if k not in LEGACY_EXECUTION and k not in ("clear_hand", "close_on_contact_within_m")}
+                if k not in LEGACY_EXECUTION and k not in ("clear_hand", "close_on_contact_within_m", "drive")}
     (tmp_path / "config.json").write_text(json.dumps({"seed": 0, "meshes": None, "procedural_seed": PROCEDURAL_SEED,
                                                       "objects_per_scene": 5, "protocol": protocol}))
 

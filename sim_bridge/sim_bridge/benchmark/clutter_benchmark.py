@@ -70,11 +70,12 @@ from concurrent.futures.process import BrokenProcessPool
 from ..datagen.object_sources import read_name_list
 from ..physics import baseline_files
 from ..physics.objects import ObjectError
+from ..physics.transmission import DRIVES
 from . import failed_rounds
 from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
                        QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, PROCEDURAL_SEED,
-                       TRAINING_PROCEDURAL_SEED, Protocol, execution_of_run, weight_key)
+                       TRAINING_PROCEDURAL_SEED, Protocol, drive_of_run, execution_of_run, weight_key)
 from .rounds import resolve_methods, run_benchmark
 
 # CLI
@@ -136,6 +137,10 @@ def main(argv=None) -> int:
     p.add_argument("--execution", default=None, choices=sorted(EXECUTION_SETTINGS),
                    help="how rounds are simulated (protocol.EXECUTION_SETTINGS; v4: every run up to benchmark v4); "
                         f"default: the settings of the run already in --out, else {DEFAULT_EXECUTION}")
+    p.add_argument("--drive", default=None, choices=DRIVES,
+                   help="the 2F-85's transmission in the cell (physics.transmission): self_locking holds what it "
+                        "gripped as the real one does; backdrivable opens at the grip force (every run before the "
+                        "lock); default: the drive of the run already in --out, else backdrivable")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write results.md etc. from the rounds finished so far in --out (same "
@@ -198,10 +203,11 @@ def main(argv=None) -> int:
         return 2
     out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
     execution = args.execution or execution_of_run(out) or DEFAULT_EXECUTION
+    drive = args.drive or drive_of_run(out) or "backdrivable"
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
                         hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
                         relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand,
-                        close_on_contact_within_m=args.close_on_contact_within_m,
+                        close_on_contact_within_m=args.close_on_contact_within_m, drive=drive,
                         **EXECUTION_SETTINGS[execution])
     t0 = time.monotonic()
     try:

@@ -69,6 +69,9 @@ class Protocol:
     lift_speed_mps: float = 0.05      # grasp -> lift (the executor's approach speed before)
     freeze_resting_objects: bool = False  # world.resting_objects
     approach_fast_speed_mps: float = 0.0  # the approach fast to 1 cm short of the grasp (0: all at 5 cm/s)
+    # The 2F-85's transmission in the cell (SimSettings.drive): "backdrivable", every run
+    # before the lock, kept out of config.json as clear_hand; "self_locking", the real one's.
+    drive: str = "backdrivable"
 
 
 # Named execution settings (`--execution NAME`): what a round's motions and physics cost.
@@ -90,6 +93,12 @@ LEGACY_EXECUTION = EXECUTION_SETTINGS["v4"]
 # and a 15 cm/s lift 6 of 67) where v4 with the grasp nudged 30 um changes none of 25
 # (doc/benchmark-speed.md).
 DEFAULT_EXECUTION = "v4"
+
+
+def drive_of(settings: dict) -> str:
+    """The drive a config.json's "protocol" or a round record ran under (before the drive
+    was recorded: "backdrivable")."""
+    return settings.get("drive", "backdrivable")
 
 
 def execution_of(settings: dict) -> dict:
@@ -114,6 +123,13 @@ def execution_of_run(out_dir) -> str | None:
         return None
     name = execution_name(json.loads(path.read_text()).get("protocol", {}))
     return name if name in EXECUTION_SETTINGS else None
+
+
+def drive_of_run(out_dir) -> str | None:
+    """The drive the run in `out_dir` ran with (its config.json), or None where no run is.
+    The CLI's --drive defaults to it, so that resuming a run keeps its drive."""
+    path = pathlib.Path(out_dir) / "config.json"
+    return drive_of(json.loads(path.read_text()).get("protocol", {})) if path.is_file() else None
 
 
 def with_execution(protocol: Protocol, name: str) -> Protocol:

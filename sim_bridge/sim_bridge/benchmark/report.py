@@ -18,7 +18,8 @@ from ..physics.scenes import ARRANGEMENTS
 from . import failed_rounds
 from .clearing import success_rates
 from .paired import compare_paired
-from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, execution_name, execution_of, weight_key
+from .protocol import (OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, drive_of, execution_name, execution_of,
+                       weight_key)
 
 # statistics
 
@@ -100,6 +101,12 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
                     r = json.loads(p.read_text())
                     if r.get("model_sha256") == shas[method]:
                         rounds.append(r)
+    drifted = [r for r in rounds if drive_of(r) != protocol.drive]
+    if drifted:
+        r = drifted[0]
+        raise ValueError(f"{len(drifted)} rounds in {out} ran with the {drive_of(r)} drive (e.g. {r['method']} "
+                         f"{r['mass_kg']} kg {r['scene_id']}), the run's config.json says {protocol.drive}: rounds of "
+                         "different drives are never pooled; move them to their own --out")
     own = execution_of(dataclasses.asdict(protocol))
     mixed = [r for r in rounds if execution_of(r.get("execution", {})) != own]
     if mixed:

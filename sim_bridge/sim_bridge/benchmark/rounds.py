@@ -70,7 +70,7 @@ def run_round(task: RoundTask) -> dict:
             "successes": sum(a["success"] for a in record["attempts"]),
             "sim_time_s": round(cell.world.time_s, 3), "cpu_s": round(time.process_time() - t0, 1),
             "machine": machine_name(),
-            "execution": {k: getattr(task.protocol, k) for k in LEGACY_EXECUTION}}
+            "execution": {k: getattr(task.protocol, k) for k in LEGACY_EXECUTION}, "drive": task.protocol.drive}
 
 
 # the run
@@ -144,6 +144,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     for off_by_default in ("clear_hand", "close_on_contact_within_m"):
         if not getattr(protocol, off_by_default):  # older runs' config.json has no such key: they stay resumable
             del config["protocol"][off_by_default]
+    if protocol.drive == "backdrivable":  # likewise: every run before the lock
+        del config["protocol"]["drive"]
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
     # The hand of each method run there: a method's, not the run's setting, so it is kept

@@ -123,7 +123,8 @@ class SimCell:
                         for o in scene["objects"])
         settings = WorldSettings(contact=SimSettings(time_step_s=protocol.time_step_s,
                                                      grip_force_n=protocol.grip_force_n,
-                                                     relaxation_time_s=protocol.relaxation_time_s),
+                                                     relaxation_time_s=protocol.relaxation_time_s,
+                                                     drive=protocol.drive),
                                  max_speed_mps=protocol.free_space_speed_mps,
                                  freeze_resting_objects=protocol.freeze_resting_objects,
                                  hand=hand, baselines_dir=baselines_dir or "")
