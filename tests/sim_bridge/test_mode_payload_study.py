@@ -55,3 +55,13 @@ def test_no_tables_is_one_sentence(tmp_path, capsys):
     assert mps.main(["--tables", str(tmp_path), "--out", str(tmp_path / "out.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "datagen objects" in err and str(tmp_path) in err
+
+
+def test_a_power_grasp_that_does_not_wrap_counts_as_precision():
+    t = table([50.0, 30.0], ["power", "power"], [True, True])
+    t["finger_joint_names"] = np.array(["left_coupler", "right_coupler"])
+    t["finger_joint_angles"] = np.array([[-0.3, -0.2], [0.0, -0.4]], np.float32)  # the second: one finger parallel
+    result = mps.study({"box": t}, (1.5,))
+    assert result["grasps"] == {"power": 1, "precision": 1}
+    assert result["wrap_power_fraction"] == 0.5
+    assert result["power_over_precision_best_fg"] == pytest.approx(50.0 / 30.0)

@@ -23,6 +23,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from . import hand_model
+from .hand_model import WRAP_MIN_RAD
 from .actuators import GripForceController, driver_torque_nm
 from .contact import SimSettings, proximity_properties
 from .transmission import add_transmission_lock
@@ -30,9 +31,7 @@ from .disturbance_rejection import DIRECTIONS_TCP, ForceRampDisturbance, measure
 from .objects import ObjectSpec, procedural_object
 
 MODES = ("power", "precision", "none")
-# A distal link wrapped past its stop: the coupler leaves 0 (where the spring holds it in a
-# parallel pinch) by more than this. A power grasp is a wrap (the paper's enveloping grasp).
-WRAP_MIN_RAD = 0.05
+
 LOCKED_HOLD_S = 0.3  # squeeze calibration: how long the locked drive holds before reading
 
 

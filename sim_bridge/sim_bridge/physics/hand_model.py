@@ -63,6 +63,9 @@ PROXIMAL_LINKS = (
     "right_driver", "right_coupler", "right_spring_link",
 )
 DISTAL_LINKS = ("left_follower", "left_pad", "right_follower", "right_pad")
+# A distal link wrapped past its stop: the coupler leaves 0 (where the spring holds it in a
+# parallel pinch) by more than this [rad]. A power grasp is a wrap (the paper's enveloping grasp).
+WRAP_MIN_RAD = 0.05
 
 class HandModelError(RuntimeError):
     """The 2F-85 description could not be found or converted."""

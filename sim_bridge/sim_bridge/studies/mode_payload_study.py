@@ -17,7 +17,13 @@ Scores are capped at the simulation's max_force_n (100 N), so weights past ~10 k
 nothing. Executed grasps hold less than their labels (doc/label-execution-study.md), so
 this is the most power grasps could add, not what the benchmark will show.
 
-Writes `--out` (JSON) and prints the table; last line `only_power_fraction_<kg>kg=`.
+A power grasp counts as one only where it wraps (palm or proximal contact, both distal
+links past their stop: grasp_simulation.classify_mode); tables are read with the rows
+appended for labelling (perturbed, toward the palm).
+
+Writes `--out` (JSON) and prints the table; the last lines are `only_power_fraction_<kg>kg=`,
+`power_over_precision_best_fg=` (median best power f_g over median best precision f_g,
+poses with both) and `wrap_power_fraction=` (the share of executable held grasps that wrap).
 """
 
 from __future__ import annotations
@@ -30,8 +36,10 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.training.scenes import G_MPS2
 
-from ..datagen.object_grasps import MODE_NAMES, load_table
+from ..datagen.object_grasps import MODE_NAMES, table_wrap_rad
+from ..datagen.perturbed_grasps import load_labelling_table
 from ..physics import hand_collision
+from ..physics.hand_model import WRAP_MIN_RAD
 from ..physics.gravity_projection import gravity_rejection_score
 
 WEIGHTS_KG = (0.1, 0.5, 1.0, 1.5, 2.5, 4.0, 6.0, 8.0)
@@ -45,7 +53,7 @@ def pose_scores(table: dict) -> list:
     resting pose of one grasp table."""
     held = np.flatnonzero(table["grasped"].astype(bool))
     X_object_tcp = table["X_object_tcp"][held].astype(np.float64)
-    mode = table["mode"][held]
+    mode = np.where(wrapping_power(table), POWER, PRECISION)[held]
     out = []
     for X_table_object, p in zip(table["rest_X_table_object"], table["rest_probability"]):
         X = X_table_object[None] @ X_object_tcp
@@ -55,6 +63,16 @@ def pose_scores(table: dict) -> list:
         m = mode[ok]
         out.append((float(p), f_g[m == POWER], f_g[m == PRECISION]))
     return out
+
+
+def wrapping_power(table) -> np.ndarray:
+    """(N,) rows that are power grasps that wrap (grasp_simulation.classify_mode: palm or
+    proximal contact and both distal links past their stop); a power row that does not
+    wrap counts as a precision grasp. A table without recorded finger joints keeps its modes."""
+    power = table["mode"] == POWER
+    if "finger_joint_names" not in table:
+        return power
+    return power & (table_wrap_rad(table) >= WRAP_MIN_RAD)
 
 
 def best(f_g) -> float:
@@ -97,6 +115,12 @@ def study(tables: dict, weights_kg=WEIGHTS_KG) -> dict:
             "grasps": {"power": int(all_power.size), "precision": int(all_precision.size)},
             # object poses that have executable held grasps of both modes: how their best compare
             "poses_with_both_modes": len(both),
+            # what issue targets name: the share of executable held grasps that wrap, and
+            # the median best power f_g over the median best precision one where a pose has both
+            "wrap_power_fraction": (float(all_power.size / (all_power.size + all_precision.size))
+                                    if all_power.size + all_precision.size else float("nan")),
+            "power_over_precision_best_fg": (float(np.median(both[:, 0]) / np.median(both[:, 1]))
+                                             if len(both) else float("nan")),
             "power_best_stronger": float((both[:, 0] > both[:, 1]).mean()) if len(both) else float("nan"),
             "median_best_f_g_n": {"power": float(np.median(both[:, 0])) if len(both) else float("nan"),
                                   "precision": float(np.median(both[:, 1])) if len(both) else float("nan")}}
@@ -137,12 +161,15 @@ def main(argv=None) -> int:
         print(f"mode_payload_study: --weights {args.weights!r}: give kg separated by commas, e.g. 0.1,1.5,4",
               file=sys.stderr)
         return 2
-    result = study({f.stem: load_table(f) for f in files}, weights)
+    # each table with the rows appended for labelling (perturbed, toward the palm)
+    result = study({f.stem: load_labelling_table(f.parent, f.stem) for f in files}, weights)
     result["tables"] = args.tables
     atomic_files.save_json(pathlib.Path(args.out), result)
     print("\n".join(report_lines(result)))
     last = result["weights"][-1]
     print(f"only_power_fraction_{last['mass_kg']:g}kg={last['only_power']:.3f}")
+    print(f"power_over_precision_best_fg={result['power_over_precision_best_fg']:.3f}")
+    print(f"wrap_power_fraction={result['wrap_power_fraction']:.3f}")
     return 0
 
 
