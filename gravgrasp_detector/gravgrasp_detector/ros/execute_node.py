@@ -46,6 +46,9 @@ class ServiceArm:
 
     def __init__(self, node: Node, service: str, stop_service: str, frame_id: str, gone_s: float = 1.0):
         self.node, self.frame_id, self.gone_s = node, frame_id, gone_s
+        self.deaths = 0          # the supervised adapter process exited this many times
+        self.death = ""          # how, the last time
+        self.probe = False       # a new adapter process: make sure it hears us before a motion
         self.client = node.create_client(MoveToPose, service, callback_group=ReentrantCallbackGroup())
         self.stop_client = node.create_client(Trigger, stop_service, callback_group=ReentrantCallbackGroup())
 
@@ -56,9 +59,29 @@ class ServiceArm:
         self.stop_client.call_async(Trigger.Request())
         return True
 
+    def _probe(self, X_task_tcp, timeout_s):
+        """A new adapter process: its service is in the graph before it is matched to this
+        client (and the dead one's stays there until its lease ends), so a motion request
+        could be lost. Ask check_only (moves nothing, safe to resend) until it answers."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            request = MoveToPose.Request(speed_mps=0.0, check_only=True)
+            request.target.header.frame_id = self.frame_id
+            pose_msg_from_matrix(X_task_tcp, request.target.pose)
+            done = threading.Event()
+            future = self.client.call_async(request)
+            future.add_done_callback(lambda _: done.set())
+            if done.wait(min(1.0, max(0.0, deadline - time.monotonic()))):
+                self.probe = False
+                return
+            future.cancel()
+        raise ArmTimeout(f"the new arm adapter did not answer on {self.client.srv_name} within {timeout_s:.0f} s")
+
     def move_to(self, X_task_tcp, speed_mps, timeout_s):
         if not self.client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
             raise ArmTimeout(f"arm service {self.client.srv_name} is not available")
+        if self.probe:
+            self._probe(X_task_tcp, timeout_s)
         request = MoveToPose.Request(speed_mps=float(speed_mps), check_only=False)
         request.deadline = (self.node.get_clock().now() + Duration(seconds=float(timeout_s))).to_msg()
         request.target.header.frame_id = self.frame_id
@@ -68,8 +91,12 @@ class ServiceArm:
         future.add_done_callback(lambda _: done.set())
         deadline = time.monotonic() + timeout_s
         gone_since = None
+        deaths = self.deaths
         while not done.wait(min(self.POLL_S, max(0.0, deadline - time.monotonic()))):
             now = time.monotonic()
+            if self.deaths != deaths:
+                future.cancel()
+                raise ArmUnavailable(f"the arm adapter process {self.death} during the motion")
             if now >= deadline:
                 future.cancel()
                 self.stop()
@@ -171,6 +198,8 @@ class ExecuteNode(Node):
             self.executor_core.arm_motion(True)
         self.latest_grasps = None
         self.latest_tsdf = None
+        self._arm_seen = False
+        self.create_timer(1.0, self._watch_arm_service, callback_group=MutuallyExclusiveCallbackGroup())
         state = MutuallyExclusiveCallbackGroup()
         self.create_subscription(GraspArray, "grasps", self._on_grasps, 10, callback_group=state)
         self.create_subscription(TSDFVolume, "tsdf", self._on_tsdf, VOLUME_QOS, callback_group=state)
@@ -181,6 +210,32 @@ class ExecuteNode(Node):
                                f"{'armed' if self.executor_core.armed else 'disarmed (call ~/arm)'}")
         if limits.empty_closed_width_m is not None:
             self.get_logger().info(f"gripper empty-closed opening: {limits.empty_closed_width_m * 1e3:.1f} mm (stored)")
+
+    def arm_started(self, pid: int):
+        """The stack started the arm adapter process (again)."""
+        self.arm.probe = self.arm.deaths > 0
+        self.get_logger().info(f"arm adapter started (pid {pid})"
+                               + ("; the executor stays disarmed until ~/arm" if self.arm.deaths else ""))
+
+    def arm_exited(self, pid: int, how: str):
+        """The supervised arm adapter process ended: a fault that disarms, said in one sentence."""
+        self.arm.death = f"(pid {pid}) ended, {how},"
+        self.arm.deaths += 1
+        was = self.executor_core.armed
+        self.executor_core.armed = False
+        self.get_logger().error(f"the arm adapter process (pid {pid}) ended, {how}: executor "
+                                f"{'disarmed' if was else 'stays disarmed'}; the stack starts it again, then call "
+                                "~/arm once the arm is checked")
+
+    def _watch_arm_service(self):
+        """An adapter in another process that leaves the ROS graph while the executor is
+        armed (stopped, crashed, its node gone) disarms it, as its death under the stack does."""
+        ready = self.arm.client.service_is_ready()
+        if self._arm_seen and not ready and self.executor_core.armed and not self.executor_core._busy.locked():
+            self.executor_core.armed = False
+            self.get_logger().error(f"arm service {self.arm.client.srv_name} left the ROS graph: executor disarmed; "
+                                    "check the arm adapter, then call ~/arm")
+        self._arm_seen = ready
 
     def _on_grasps(self, msg):
         self.latest_grasps = msg

@@ -72,8 +72,10 @@ def rtde_connect(robot_ip: str, frequency_hz: float):
 
 
 class URArmNode(Node):
-    def __init__(self, connect=None, **node_options):
-        """`connect`: () -> (control, receive); default: ur_rtde to `robot_ip`."""
+    def __init__(self, connect=None, parameters_only=False, **node_options):
+        """`connect`: () -> (control, receive); default: ur_rtde to `robot_ip`.
+        `parameters_only`: declare and check the parameters, serve nothing (the stack's
+        start-up check of a cell file; ur_arm itself runs in its own process)."""
         super().__init__("ur_arm", **node_options)
         p = lambda name, default, d: self.declare_parameter(name, default, d).value  # noqa: E731
         _text = lambda text: described(text, read_only=True)  # noqa: E731  (all read-only)
@@ -157,6 +159,8 @@ class URArmNode(Node):
         self._last_problem = None
         self._last_problem_t = -math.inf
         self._last_status = None
+        if parameters_only:
+            return
 
         services = ReentrantCallbackGroup()
         self.create_service(MoveToPose, "move_to_pose", self._guarded(self._on_move), callback_group=services)
