@@ -12,6 +12,9 @@ external shutdown end it with 0 after `node.close()` (if the node has one).
 
 from __future__ import annotations
 
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+
 
 def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | None = None, args=None) -> int:
     """rclpy.init, `make_node()`, spin until Ctrl-C or shutdown, clean up; -> exit code.
@@ -20,8 +23,6 @@ def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | No
     end the process with one line and code 2 (anything else is a bug: traceback).
     `threads`: None spins a single-threaded executor, else a MultiThreadedExecutor.
     """
-    import rclpy  # lazy: importing this module must not need a ROS install
-
     rclpy.init(args=args)
     try:
         node = make_node()
@@ -35,8 +36,6 @@ def run_node(name: str, make_node, start_errors=(ValueError,), threads: int | No
 def spin(nodes, threads: int | None = None) -> int:
     """Spin `nodes` (rclpy already initialised) until Ctrl-C or shutdown, then
     `shut_down(nodes)`; -> 0."""
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
-
     executor = SingleThreadedExecutor() if threads is None else MultiThreadedExecutor(num_threads=threads)
     for node in nodes:
         executor.add_node(node)
@@ -53,8 +52,6 @@ def spin(nodes, threads: int | None = None) -> int:
 def shut_down(nodes) -> None:
     """`close()` each node that has one, destroy them and shut rclpy down (also for a
     process that fails to start after building some of its nodes)."""
-    import rclpy
-
     for node in nodes:
         if hasattr(node, "close"):
             node.close()
