@@ -211,20 +211,20 @@ bench-datagen: setup
 
 # Which label settings rank grasps as the v1 settings do, at less CPU (~20 min).
 label-settings-study: setup
-	@$(ROS) ros2 run sim_bridge label_settings_study --tables models/grasp_tables_v1 \
+	@$(ROS) python -m sim_bridge.studies.label_settings_study --tables models/grasp_tables_v1 \
 	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS)
 
 # Do grasps copied to an object's symmetries hold as the simulated ones do? (240 grasps x 3
 # simulations, ~40 min on 2 free cores)
 symmetry-study: setup
-	@$(ROS) ros2 run sim_bridge symmetry_study --tables models/grasp_tables_v2 --copies $(COPIES) \
+	@$(ROS) python -m sim_bridge.studies.symmetry_study --tables models/grasp_tables_v2 --copies $(COPIES) \
 	  --meshes ../shared/meshes/vgn_train --workers $(WORKERS) --out out/symmetry_study$(if $(filter mirror,$(COPIES)),_mirror).json
 
 # Where does holding stop? Held candidates of the v3 tables moved 7.5 and 15 mm across the
 # pads and shallower, closed again (8 objects x 10 candidates x 6 moves, ~10 CPU-min).
 # Last line: held_fraction_across_15mm=.
 perturbation-study: setup
-	@$(ROS) ros2 run sim_bridge perturbation_study --tables models/grasp_tables_v3 --meshes ../shared/meshes/vgn_train \
+	@$(ROS) python -m sim_bridge.studies.perturbation_study --tables models/grasp_tables_v3 --meshes ../shared/meshes/vgn_train \
 	  --exclude $(HELD_OUT) --workers $(WORKERS) --out out/perturbation_study.json
 
 # Do labels execute? A sample of SCENES_OUT's labels run as the benchmark runs a grasp, per
@@ -232,7 +232,7 @@ perturbation-study: setup
 # approach_failure_fraction= (jammed on the approach or lift blocked).
 PER_MODE ?= 40
 label-execution-study: setup
-	@$(ROS) ros2 run sim_bridge label_execution_study --scenes $(SCENES_OUT) --objects models/grasp_tables_v2 \
+	@$(ROS) python -m sim_bridge.studies.label_execution_study --scenes $(SCENES_OUT) --objects models/grasp_tables_v2 \
 	  --meshes ../shared/meshes/vgn_train --per-mode $(PER_MODE) --weights 1.5,0.1 --workers $(WORKERS) \
 	  --out out/label_execution/$(notdir $(SCENES_OUT))
 
@@ -240,7 +240,7 @@ label-execution-study: setup
 # each held-out benchmark scene, those it refuses for collision, executed anyway (~1 CPU-min
 # each), beside the grasp the benchmark ran. Last line: refused_success_fraction=.
 refusal-study: setup
-	@$(ROS) ros2 run sim_bridge refusal_study --bench sim_bridge/results/heldout_v4 --model models/gravgrasp.pt \
+	@$(ROS) python -m sim_bridge.studies.refusal_study --bench sim_bridge/results/heldout_v4 --model models/gravgrasp.pt \
 	  --weights 1.5,0.1 --workers $(WORKERS) --out sim_bridge/results/refusal_study/heldout_v4
 
 # Dataset v1 (the shipped models' data): free sampler, settled poses.

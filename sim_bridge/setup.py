@@ -15,7 +15,8 @@ setup(
     description="Drake simulation of the Robotiq 2F-85: grasp simulation, data generation, scenes, the sim bridge node and the clutter-removal benchmark.",
     license="BSD-3-Clause",
     entry_points={
-        # Each executable is started as: ros2 run sim_bridge <name>
+        # Each executable is started as: ros2 run sim_bridge <name>. The studies and the
+        # analysis tools are not installed: python -m sim_bridge.studies.<name> / .analysis.<name>
         "console_scripts": [
             "evaluate_grasp = sim_bridge.physics.evaluate_grasp_cli:main",
             "bench_sim = sim_bridge.physics.bench_sim:main",
@@ -27,13 +28,6 @@ setup(
             "qualitative = sim_bridge.benchmark.qualitative:main",
             "soak = sim_bridge.ros.soak:main",
             "bench_datagen = sim_bridge.datagen.bench_datagen:main",
-            "label_settings_study = sim_bridge.studies.label_settings_study:main",
-            "symmetry_study = sim_bridge.studies.symmetry_study:main",
-            "table_size_study = sim_bridge.studies.table_size_study:main",
-            "perturbation_study = sim_bridge.studies.perturbation_study:main",
-            "label_execution_study = sim_bridge.studies.label_execution_study:main",
-            "refusal_study = sim_bridge.studies.refusal_study:main",
-            "replay_round = sim_bridge.benchmark.replay:main",
         ],
     },
 )

@@ -26,17 +26,17 @@ copied=ours,binary,ours_precision  # the 2F-85 methods whose committed rounds ar
 all="$copied,vgn,vn_edge,vgn_2f85"
 heldout=(--meshes "$meshes" --only models/vgn_heldout_meshes.txt)  # heldout_v4's options
 prepare() {  # prepare SOURCE OUT: the committed run's scenes and copied methods' rounds (idempotent)
-  python -m sim_bridge.benchmark.paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" \
+  python -m sim_bridge.studies.detection_levers paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" \
     --methods "$copied"
 }
 bench() {  # bench OUT WEIGHTS METHODS [OPTION...]
   echo "[baselines] $(date -u +%FT%TZ) $1: $3 at $2 kg"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --workers "$workers" \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$1" --workers "$workers" \
     --no-progress --scenes 16 --weights "$2" --methods "$3" "${@:4}" \
     || echo "[baselines] some rounds of $1 failed (listed above; a rerun retries them); going on"
 }
 report() {  # report OUT [OPTION...]: results.md etc. over every method, paired per scene
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --report --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$1" --report --no-progress \
     --scenes 16 --weights 0.1,0.5,1.5 --methods "$all" "${@:2}" >/dev/null \
     || echo "[baselines] the report of $1 failed; going on"
 }

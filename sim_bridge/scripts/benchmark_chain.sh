@@ -32,7 +32,7 @@ model_args() {  # model_args METHODS: --model METHOD=models/FILE for those of ME
 bench() {  # bench NAME METHODS [OPTION...]: one result directory's rounds of METHODS
   model_args "$2"
   echo "[bench] $(date -u +%FT%TZ) $1: $2"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --workers "$workers" --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$1" --workers "$workers" --no-progress \
     "${size[@]}" --methods "$2" "${models[@]}" "${@:3}" \
     || echo "[bench] some rounds of $1 failed (listed above; a rerun retries them); going on"
 }

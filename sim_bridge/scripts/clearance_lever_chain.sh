@@ -33,13 +33,13 @@ python -m gravgrasp_detector.training.cli --data out/scenes_v4 --out "$run" --ep
   --threads "$workers" --no-progress --negative-weight=250 --label-clearance
 
 lever() {  # lever SOURCE OUT [OPTION...]: pair with SOURCE's Ours and Binary, run ours_clearance, report
-  python -m sim_bridge.benchmark.paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" \
+  python -m sim_bridge.studies.detection_levers paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" \
     --methods ours,binary
   echo "[clearance] $(date -u +%FT%TZ) $2: ours_clearance at 0.1,1.5 kg"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$2" --workers "$workers" \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$2" --workers "$workers" \
     --no-progress --scenes 16 --weights 0.1,1.5 --methods ours_clearance --model "$model" "${@:3}" \
     || echo "[clearance] some rounds of $2 failed (listed above; a rerun retries them); going on"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$2" --report --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$2" --report --no-progress \
     --scenes 16 --weights 0.1,1.5 --methods ours,binary,ours_clearance --model "$model" "${@:3}" | tail -n 12
 }
 lever heldout_v4_sure heldout_v4_clearance "${heldout[@]}"

@@ -32,7 +32,7 @@ workers="${WORKERS:-2}"
 bench_size=(--scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5)  # the Makefile's BENCH_SIZE
 heldout() {  # heldout --methods ... [--model ...]: the held-out meshes (finished rounds are skipped)
   echo "[chain] $(date -u +%FT%TZ) benchmark held-out meshes: $*"
-  python -m sim_bridge.benchmark.clutter_benchmark --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
+  python -m sim_bridge.studies.detection_levers --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
     --out sim_bridge/results/heldout --workers "$workers" --no-progress "${bench_size[@]}" "$@" \
     || echo "[chain] some held-out rounds failed (listed above; a rerun retries them); going on"
 }
@@ -72,6 +72,6 @@ for pair in ours_precision:precision_only ours_ey_ez:ey_ez ours_quat:quat; do
 done
 heldout "${models[@]}"
 echo "[chain] $(date -u +%FT%TZ) benchmark procedural"
-python -m sim_bridge.benchmark.clutter_benchmark --out sim_bridge/results/procedural --workers "$workers" \
+python -m sim_bridge.studies.detection_levers --out sim_bridge/results/procedural --workers "$workers" \
   --no-progress "${bench_size[@]}" "${models[@]}"
 echo "[chain] $(date -u +%FT%TZ) done"

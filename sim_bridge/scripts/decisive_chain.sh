@@ -37,18 +37,18 @@ everyone="ours,binary,ours_precision,$method${screen:+,$screen}"
 
 copy() {  # copy SOURCE OUT METHODS: SOURCE's scenes and the rounds of METHODS into OUT
   [ -d "sim_bridge/results/$1" ] || return 0
-  python -m sim_bridge.benchmark.paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" --methods "$3"
+  python -m sim_bridge.studies.detection_levers paired_run --source "sim_bridge/results/$1" --out "sim_bridge/results/$2" --methods "$3"
 }
 bench() {  # bench OUT SCENES WEIGHTS METHODS [OPTION...]
   echo "[decisive] $(date -u +%FT%TZ) $1: $4 at $3 kg, $2 scenes"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --workers "$workers" --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$1" --workers "$workers" --no-progress \
     --scenes "$2" --weights "$3" --methods "$4" "${@:5}" \
     || echo "[decisive] some rounds of $1 failed (listed above; a rerun retries them); going on"
 }
 report() {  # report OUT METHODS WEIGHTS [OPTION...]: the run's report, then its 16 scenes no choice saw
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$1" --report --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$1" --report --no-progress \
     --scenes 32 --weights "$3" --methods "$2" "${@:4}" | tail -n 24
-  [[ "$1" != *_decisive ]] || python -m sim_bridge.benchmark.fresh_scenes "sim_bridge/results/$1" --after 16 \
+  [[ "$1" != *_decisive ]] || python -m sim_bridge.analysis.fresh_scenes "sim_bridge/results/$1" --after 16 \
     --methods "$2" | tail -n 12 || true
 }
 

@@ -7,7 +7,7 @@
 #   sim_bridge/results/heldout_v4_guarded_approach (the 48 held-out meshes) and
 #   procedural_v4_guarded_approach (procedural seed 1000), 64 rounds a set (~80 min on 2 cores).
 # Each report pairs Ours with Binary per scene under the guarded approach; against the
-# unguarded rounds of the same scenes: python -m sim_bridge.benchmark.run_vs_run (benchmark.md).
+# unguarded rounds of the same scenes: python -m sim_bridge.analysis.run_vs_run (benchmark.md).
 # One line per session resumes it (`make lever-guarded PIN=<the commit it started on>`):
 #   ros_ws/run_pinned.sh COMMIT out/guarded_lever.log -- out/pinned/<COMMIT:12>/sim_bridge/scripts/guarded_lever_chain.sh
 # Commit the rounds as they come: git add sim_bridge/results/*_v4_guarded_approach && git commit -m "..."
@@ -22,10 +22,10 @@ guarded() {  # guarded SOURCE OUT [OPTION...]: SOURCE's scenes, then Ours and Bi
   mkdir -p "sim_bridge/results/$2/scenes"
   cp -n "sim_bridge/results/$1/scenes/"*.json "sim_bridge/results/$2/scenes/"
   echo "[guarded] $(date -u +%FT%TZ) $2: ours,binary at 0.1,1.5 kg"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$2" --workers "$workers" \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$2" --workers "$workers" \
     --no-progress "${size[@]}" "${@:3}" \
     || echo "[guarded] some rounds of $2 failed (listed above; a rerun retries them); going on"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "sim_bridge/results/$2" --report --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$2" --report --no-progress \
     "${size[@]}" "${@:3}" | tail -n 16
 }
 guarded heldout_v4_sure heldout_v4_guarded_approach --meshes "$meshes" --only models/vgn_heldout_meshes.txt

@@ -22,13 +22,13 @@ size=(--scenes 16 --weights 0.1,1.5)
 
 lever() {  # lever OURS_SOURCE PRECISION_SOURCE OUT [OPTION...]
   local out="sim_bridge/results/$3"
-  python -m sim_bridge.benchmark.paired_run --source "sim_bridge/results/$1" --out "$out" --methods ours,binary
-  python -m sim_bridge.benchmark.paired_run --source "sim_bridge/results/$2" --out "$out" --methods ours_precision
+  python -m sim_bridge.studies.detection_levers paired_run --source "sim_bridge/results/$1" --out "$out" --methods ours,binary
+  python -m sim_bridge.studies.detection_levers paired_run --source "sim_bridge/results/$2" --out "$out" --methods ours_precision
   echo "[$method] $(date -u +%FT%TZ) $3: $method at 0.1,1.5 kg"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "$out" --workers "$workers" --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "$out" --workers "$workers" --no-progress \
     "${size[@]}" --methods "$method" "${@:4}" \
     || echo "[$method] some rounds of $3 failed (listed above; a rerun retries them); going on"
-  python -m sim_bridge.benchmark.clutter_benchmark --out "$out" --report --no-progress \
+  python -m sim_bridge.studies.detection_levers --out "$out" --report --no-progress \
     "${size[@]}" --methods "ours,binary,ours_precision,$method" "${@:4}" | tail -n 16
 }
 lever heldout_v4_sure heldout_v4 "heldout_v4_$lever" --meshes "$meshes" --only models/vgn_heldout_meshes.txt

@@ -288,75 +288,9 @@ def test_validness_ranking_for_a_binary_model():
     with pytest.raises(ValueError, match="rank_by"):
         detection.DetectionOptions(rank_by="probability")
     with pytest.raises(ValueError, match="has_score is False"):
-        detection.DetectionOptions(rank_by="expected_score", has_score=False)
+        detection.DetectionOptions(rank_by="score", has_score=False)
     with pytest.raises(ValueError, match="precision"):
         detection.DetectionOptions(precision="fp16")
-
-
-def test_a_score_model_ranks_the_grasps_another_model_places():
-    """score_model: the placing model's validness, threshold and rotations pick and pose the
-    grasps; the score model's score [N] at the same voxels ranks them and is what they carry."""
-    torch.manual_seed(0)
-    placer = networks.GraspNet().eval()
-    torch.manual_seed(1)
-    scorer = networks.GraspNet(score_scale_n=30.0).eval()
-    grid = table_grid().numpy()
-    with torch.inference_mode():
-        x = torch.from_numpy(grid)[None, None]
-        own_score, own_logit = (t[0] for t in placer.score_and_validness_from_half(placer.half_features(x)))
-        other_score = scorer.score_and_validness_from_half(scorer.half_features(x))[0][0]
-    validness = torch.sigmoid(own_logit)
-    threshold = float(validness[:, :, 5:9].median())  # near the table: some voxels pass, some not
-    options = detection.DetectionOptions(validness_threshold=threshold, max_grasps=1000)
-    grasps = detection.detect_grasps(placer, grid, VS, options=options, score_model=scorer)
-    assert len(grasps) > 3
-    assert [g.score_n for g in grasps] == pytest.approx([float(other_score[g.voxel_index]) for g in grasps], abs=1e-4)
-    assert [g.score_n for g in grasps] == sorted((g.score_n for g in grasps), reverse=True)
-    assert [g.validness for g in grasps] == pytest.approx([float(validness[g.voxel_index]) for g in grasps], abs=1e-5)
-    assert min(g.validness for g in grasps) >= threshold
-    # placed as the placer places its own: every one of them among the placer's candidates, same pose
-    placed = detection.detect_grasps(placer, grid, VS, options=dataclasses.replace(
-        options, rank_by="validness", has_score=False, nms_radius_voxels=0, max_grasps=10**6))
-    pose_at = {g.voxel_index: g.pose for g in placed}
-    for g in grasps:
-        np.testing.assert_allclose(g.pose, pose_at[g.voxel_index])
-    alone = detection.detect_grasps(placer, grid, VS, options=options)
-    assert [g.voxel_index for g in alone] != [g.voxel_index for g in grasps]  # the other score reorders them
-    assert not torch.allclose(own_score, other_score)
-
-
-def test_a_preferred_score_orders_but_never_empties():
-    """prefer_score_n (a known payload's need, held_payload_score_n): ranked by validness,
-    the grasps scored at least that first, then the others; above every score it leaves the
-    validness ranking as it was, where min_score_n would leave nothing."""
-    torch.manual_seed(0)
-    net = networks.GraspNet().eval()
-    grid = table_grid().numpy()
-    options = detection.DetectionOptions(validness_threshold=0.0, max_grasps=1000, rank_by="validness")
-    plain = detection.detect_grasps(net, grid, VS, options=options)
-    prefer_n = float(np.median([g.score_n for g in plain]))
-    preferred = detection.detect_grasps(net, grid, VS, options=dataclasses.replace(options, prefer_score_n=prefer_n))
-    strong = [g.score_n >= prefer_n for g in preferred]
-    assert any(strong) and not all(strong)
-    assert strong == sorted(strong, reverse=True)  # every preferred grasp before every other
-    for group in (True, False):
-        v = [g.validness for g, s in zip(preferred, strong) if s == group]
-        assert v == sorted(v, reverse=True)
-    assert all(g.rank_key == pytest.approx(g.validness + s) for g, s in zip(preferred, strong))
-    above_all = dataclasses.replace(options, prefer_score_n=1e6)
-    assert ([g.voxel_index for g in detection.detect_grasps(net, grid, VS, options=above_all)]
-            == [g.voxel_index for g in plain])
-    assert not detection.detect_grasps(net, grid, VS, options=dataclasses.replace(options, min_score_n=1e6))
-    assert detection.held_payload_score_n(1.5) == pytest.approx(
-        detection.EXECUTED_HOLD_OFFSET_N + detection.EXECUTED_HOLD_N_PER_WEIGHT_N * 1.5 * 9.81)
-    with pytest.raises(ValueError, match="give a mass >= 0 kg"):
-        detection.held_payload_score_n(-1.0)
-    with pytest.raises(ValueError, match="rank_by 'validness'"):
-        detection.DetectionOptions(prefer_score_n=30.0)  # ranked by score: nothing to order
-    with pytest.raises(ValueError, match="rank_by 'validness'"):
-        detection.DetectionOptions(prefer_score_n=30.0, rank_by="validness", has_score=False)
-    with pytest.raises(ValueError, match="give a score >= 0 N"):
-        detection.DetectionOptions(prefer_score_n=math.nan, rank_by="validness")
 
 
 def test_a_model_without_a_score_is_selected_and_ranked_by_validness_alone():
@@ -380,9 +314,9 @@ def test_a_model_without_a_score_is_selected_and_ranked_by_validness_alone():
         detection.select_grasps(table_grid(), None, validness, top_down_channels, "ex-ez", VS)
 
 
-def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one():
-    """rank_by="expected_score": ranked (and suppressed) by validness x score; each grasp
-    still publishes its score in N."""
+def test_a_callers_rank_key_ranks_and_suppresses_and_each_grasp_keeps_its_score():
+    """rank_key (a study's ranking, here validness x score): ranked (and suppressed) by the
+    key; each grasp still publishes its score in N."""
     score, validness = hand_made_outputs()
     validness[20, 20, 8] = 0.55  # 9 N, barely valid: 4.95 expected
     validness[10, 10, 8] = 0.95  # 5 N, sure: 4.75 expected
@@ -402,42 +336,6 @@ def test_expected_score_ranking_puts_a_sure_grasp_before_a_doubtful_stronger_one
     by_expected = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS,
                                           options=options, rank_key=validness * score)
     assert by_expected[0].voxel_index == (21, 20, 8) and (20, 20, 8) not in [g.voxel_index for g in by_expected]
-    # detect_grasps computes the key itself
-    torch.manual_seed(0)
-    net = networks.GraspNet().eval()
-    opts = detection.DetectionOptions(validness_threshold=0.0, max_grasps=10, rank_by="expected_score")
-    grasps = detection.detect_grasps(net, table_grid().numpy(), VS, options=opts)
-    keys = [g.validness * g.score_n for g in grasps]
-    assert grasps and keys == sorted(keys, reverse=True)
-    assert [g.rank_key for g in grasps] == pytest.approx(keys)
-
-
-def test_clear_hand_publishes_the_neighbour_the_open_hand_can_reach():
-    # A lid 6 cm above the table top: the housing of a top-down grasp at k=8 meets it,
-    # one voxel higher it clears it. By the paper's steps the deeper grasp (9 N) suppresses
-    # its neighbour (8.5 N) in NMS and is the only one published, which the executor then
-    # refuses; step 6 (clear_hand) publishes the neighbour instead.
-    grid = table_grid().clone()
-    grid[14:27, 14:27, 16] = 0.3
-    score, validness = torch.zeros(R, R, R), torch.ones(R, R, R)
-    score[20, 20, 8], score[20, 20, 9] = 9.0, 8.5
-
-    def run(grid, **options):
-        options = detection.DetectionOptions(min_surface_voxels=0, **options)
-        return detection.select_grasps(grid, score, validness, top_down_channels, "ex-ez", VS, (0.1, 0.0, 0.0), options)
-
-    assert [g.voxel_index for g in run(grid)] == [(20, 20, 8)]
-    (clear,) = run(grid, clear_hand=True)
-    assert clear.voxel_index == (20, 20, 9) and clear.score_n == 8.5
-    # the executor's own check agrees (task frame: the grid's origin at x = 0.1 m)
-    tsdf = (grid.numpy(), VS, np.array([0.1, 0.0, 0.0]))
-    assert not hand_clearance.first_collision(grasp_execution.plan_poses(clear.pose, 0.05, 0.1), tsdf)
-    X_deep = grasp_execution.plan_poses(run(grid)[0].pose, 0.05, 0.1)
-    assert "housing" in hand_clearance.first_collision(X_deep, tsdf)
-    # a lid one voxel higher blocks both: nothing is published rather than a grasp the hand cannot reach
-    low = table_grid().clone()
-    low[14:27, 14:27, 17] = 0.3
-    assert run(low, clear_hand=True) == []
 
 
 def test_hands_collide_agrees_with_the_executors_check():

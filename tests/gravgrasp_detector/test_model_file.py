@@ -112,7 +112,7 @@ def test_detect_startup_says_one_short_fact_per_line():
     assert not any("/work/" in line for line in lines[1:]), lines
 
 
-def test_ranking_follows_the_model_unless_asked_and_refuses_newtons_of_a_binary_model():
+def test_ranking_follows_the_model():
     import pathlib
 
     from gravgrasp_detector.ros.detect_node import startup_lines
@@ -120,17 +120,8 @@ def test_ranking_follows_the_model_unless_asked_and_refuses_newtons_of_a_binary_
     score_model = {"training_data": {"target": "gravity-score"}}
     binary_model = {"training_data": {"target": "binary"}}
     assert model_file.ranking(score_model) == "score" and model_file.ranking(binary_model) == "validness"
-    assert model_file.ranking(score_model, "expected_score") == "expected_score"
-    assert model_file.ranking(binary_model, "validness") == "validness"
-    for asked in ("score", "expected_score"):
-        with pytest.raises(model_file.ModelFileError, match="trained with --target binary"):
-            model_file.ranking(binary_model, asked)
-    with pytest.raises(model_file.ModelFileError, match="use one of model, score, expected_score, validness"):
-        model_file.ranking(score_model, "probability")
     shipped = pathlib.Path(__file__).resolve().parents[2] / "models" / "gravgrasp.pt"
     _, meta = model_file.load_model(shipped)
-    assert "grasps ranked by validness x score; each carries its score in N" in \
-        startup_lines(str(shipped), meta, "fp32", 1, "expected_score")
     assert not any("ranked" in line for line in startup_lines(str(shipped), meta, "fp32", 1))
     binary = {**meta, "training_data": {**meta["training_data"], "target": "binary"}}
     assert "grasps ranked by validness (a binary model: no score in N, it publishes NaN)" in \

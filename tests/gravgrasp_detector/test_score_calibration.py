@@ -140,15 +140,15 @@ def test_top_picks_are_told_apart_by_what_the_scene_knows_of_their_voxel(scenes,
     np.savez(edited, **z)
     order = {"score": [negative, label, (39, 39, 39)], "expected_score": [label, negative, (39, 39, 39)],
              "validness": []}
-    monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
-        Grasp(np.eye(4), 1.0, 1.0, v) for v in order[options.rank_by]])
+    monkeypatch.setattr(score_calibration, "pick_grasps", lambda model, grid, vs, ranking, options: [
+        Grasp(np.eye(4), 1.0, 1.0, v) for v in order[ranking if ranking in order else options.rank_by]])
     picks = score_calibration.top_picks(None, {}, [edited], 0.0075)
     where = lambda c: {w: c[w] for w in ("label", "negative", "neither")}  # noqa: E731
     assert where(picks["score"][1]) == {"label": 0, "negative": 1, "neither": 0}
     assert where(picks["expected_score"][1]) == {"label": 1, "negative": 0, "neither": 0}
     assert where(picks["score"][5]) == where(picks["expected_score"][5]) == {"label": 1, "negative": 1, "neither": 1}
     # a binary model has one ranking, its validness
-    monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: [
+    monkeypatch.setattr(score_calibration, "pick_grasps", lambda model, grid, vs, ranking, options: [
         Grasp(np.eye(4), 1.0, 1.0, label)] if options.rank_by == "validness" else [])
     assert list(score_calibration.top_picks(None, {"training_data": {"target": "binary"}}, [edited], 0.0075)) == \
         ["validness"]
@@ -179,11 +179,11 @@ def test_a_pick_holds_the_weights_its_closest_label_holds(scenes, tmp_path, monk
 
     for e_x, held in (([1, 0, 0], {"0.1": 1, "0.5": 1, "1.5": 0, "2.5": 0, "4.0": 0}),
                       ([0, -1, 0], {"0.1": 1, "0.5": 1, "1.5": 1, "2.5": 1, "4.0": 0})):
-        monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options, e_x=e_x: [pick(e_x)])
+        monkeypatch.setattr(score_calibration, "pick_grasps", lambda model, grid, vs, ranking, options, e_x=e_x: [pick(e_x)])
         picks = score_calibration.top_picks(None, {"training_data": {"target": "binary"}}, [edited], 0.0075)
         assert picks["validness"][1]["label"] == 1 and picks["validness"][1]["holds_kg"] == held
     seen = []
-    monkeypatch.setattr(score_calibration, "detect_grasps", lambda model, grid, vs, options: seen.append(
+    monkeypatch.setattr(score_calibration, "pick_grasps", lambda model, grid, vs, ranking, options: seen.append(
         options.validness_threshold) or [])
     score_calibration.top_picks(None, {}, [edited], 0.0075, validness_threshold=0.9)
     assert seen == [0.9] * (3 + len(score_calibration.HOLDS_KG))  # each ranking with the threshold asked for

@@ -17,6 +17,7 @@ from sim_bridge.benchmark import clearing, methods, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
 from sim_bridge.benchmark.methods import gravgrasp as gravgrasp_method
 from sim_bridge.physics.objects import ObjectError
+from made_models import save_test_model
 
 pytestmark = pytest.mark.drake
 
@@ -336,169 +337,6 @@ def test_missing_model_is_skipped_with_a_note(tmp_path):
         bench_rounds.resolve_methods(["oursx"], tmp_path)
 
 
-def test_a_ranking_variant_runs_its_base_methods_model_under_its_own_ranking(tmp_path):
-    save_test_model(tmp_path / "gravgrasp.pt", validness_bias=0.0)
-    other = save_test_model(tmp_path / "elsewhere.pt", validness_bias=0.0)
-    assert bench_rounds.resolve_methods(["ours_expected"], tmp_path) == {
-        "ours_expected": str((tmp_path / "gravgrasp.pt").resolve())}
-    # --model ours=PATH moves the variant with it (the v4 chain benchmarks out/training_v4 models)
-    assert bench_rounds.resolve_methods(["ours", "ours_expected"], tmp_path, {"ours": str(other)}) == {
-        "ours": str(other.resolve()), "ours_expected": str(other.resolve())}
-    model, meta = model_file.load_model(other)
-    grid = np.zeros((40, 40, 40), np.float32)
-    grid[10:30, 10:30, 6:12] = 0.3
-    grid[10:30, 10:30, 12] = 0.5
-    p = protocol.Protocol(validness_threshold=0.0)
-    by_score = gravgrasp_method.make_detect(model, meta, p)((grid, 0.0075, np.zeros(3)))
-    by_expected = gravgrasp_method.make_detect(model, meta, p, "expected_score")((grid, 0.0075, np.zeros(3)))
-    keys = [g.validness * g.score_n for g in by_expected]
-    assert keys == sorted(keys, reverse=True) and [g.score_n for g in by_score] == sorted(
-        (g.score_n for g in by_score), reverse=True)
-    assert [g.rank_key for g in by_expected] == pytest.approx(keys)  # the key is its own field, score_n stays N
-    assert all(g.rank_key == g.score_n for g in by_score)
-    assert [g.voxel_index for g in by_expected] != [g.voxel_index for g in by_score]
-
-
-def test_a_selection_variant_takes_only_sure_grasps_of_its_base_methods_model(tmp_path):
-    save_test_model(tmp_path / "gravgrasp.pt")
-    assert bench_rounds.resolve_methods(["ours_sure"], tmp_path) == {
-        "ours_sure": str((tmp_path / "gravgrasp.pt").resolve())}
-    grid = np.zeros((40, 40, 40), np.float32)
-    grid[10:30, 10:30, 6:12] = 0.3
-    grid[10:30, 10:30, 12] = 0.5
-    p = protocol.Protocol(validness_threshold=0.0)
-    # The test model's validness is the same everywhere: sigmoid(bias), 0.88 and 0.92 here.
-    for bias, sure_expected in ((2.0, False), (2.5, True)):
-        path = save_test_model(tmp_path / f"{bias}.pt", validness_bias=bias)
-        every = methods.METHODS["ours"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
-        sure = methods.METHODS["ours_sure"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
-        assert every and all(g.rank_key == g.score_n for g in every)
-        voxels = [tuple(g.voxel_index) for g in sure]
-        assert voxels == ([tuple(g.voxel_index) for g in every] if sure_expected else [])
-        # Ours-Precision's sure variant: the same floor on the precision-only model's file
-        precision_sure = methods.METHODS["ours_precision_sure"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
-        assert [tuple(g.voxel_index) for g in precision_sure] == voxels
-    save_test_model(tmp_path / "gravgrasp_precision_only.pt")
-    assert bench_rounds.resolve_methods(["ours_precision_sure"], tmp_path) == {
-        "ours_precision_sure": str((tmp_path / "gravgrasp_precision_only.pt").resolve())}
-
-
-
-def test_binary_scored_takes_binarys_sure_grasps_ranked_by_ours_score(tmp_path):
-    """binary_scored: Binary's model places (its validness floor 0.9, its poses), Ours'
-    model beside it ranks by its score, which the grasps carry; without Ours' file beside
-    Binary's it is missing, and a score model without a score is refused."""
-    grid = np.zeros((40, 40, 40), np.float32)
-    grid[10:30, 10:30, 6:12] = 0.3
-    grid[10:30, 10:30, 12] = 0.5
-    view = (grid, 0.0075, np.zeros(3))
-    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
-    method = methods.METHODS["binary_scored"]
-    assert method.file_of == "binary" and method.hand == "2f85"
-    binary = save_test_model(tmp_path / "gravgrasp_binary.pt", target="binary")
-    notes = []
-    assert bench_rounds.resolve_methods(["binary_scored"], tmp_path, note=notes.append) == {}
-    assert "gravgrasp.pt not found beside gravgrasp_binary.pt: get it from models/" in notes[0]
-    torch.manual_seed(3)
-    ours = networks.GraspNet(score_scale_n=30.0)  # scores unlike the binary model's own head
-    model_file.save_model(tmp_path / "gravgrasp.pt", ours, tsdf.TSDFVolume(resolution=40),
-                          training_data={"target": "gravity-score"})
-    assert bench_rounds.resolve_methods(["binary_scored"], tmp_path) == {"binary_scored": str(binary.resolve())}
-    detector = method.make(str(binary), p)
-    assert detector.target == "gravity-score"
-    scored = detector.detect(view)
-    placed = methods.METHODS["binary"].make(str(binary), dataclasses.replace(p, validness_threshold=0.9)).detect(view)
-    assert scored and len(scored) <= len(placed)
-    assert all(g.validness >= 0.9 and np.isfinite(g.score_n) for g in scored)
-    assert [g.score_n for g in scored] == sorted((g.score_n for g in scored), reverse=True)
-    pose_at = {tuple(g.voxel_index): g.pose for g in placed}
-    assert all(np.allclose(g.pose, pose_at[tuple(g.voxel_index)]) for g in scored if tuple(g.voxel_index) in pose_at)
-    save_test_model(tmp_path / "gravgrasp.pt", target="binary")
-    with pytest.raises(model_file.ModelFileError, match="no gravity-rejection score"):
-        method.make(str(binary), p)
-
-
-def test_the_masked_variant_takes_only_grasps_vgns_mask_keeps_of_its_base_methods_model(tmp_path):
-    path = save_test_model(tmp_path / "gravgrasp.pt")
-    assert bench_rounds.resolve_methods(["ours_masked"], tmp_path) == {"ours_masked": str(path.resolve())}
-    assert methods.METHODS["ours_masked"].file_of == "ours" and methods.METHODS["ours_masked"].hand == "2f85"
-    grid = np.zeros((40, 40, 40), np.float32)
-    grid[10:30, 10:30, 6:12] = 0.3  # observed inside
-    grid[10:30, 10:30, 12] = 0.5  # the surface
-    grid[10:30, 10:30, 13:16] = 0.7  # observed free space in front of it
-    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
-    every = methods.METHODS["ours"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
-    masked = methods.METHODS["ours_masked"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
-    band = detection.free_space_band(grid)
-
-    def kept(g):  # VGN's mask where VGN's TCP would sit (detection's free_space_mask "finger_base")
-        point = g.pose[:3, 3] + detection.FINGER_BASE_Z_M * g.pose[:3, 2]
-        return bool(detection.band_keeps(band, point, 0.0075)[0])
-    assert masked and all(kept(g) for g in masked)
-    assert any(not kept(g) for g in every)  # the paper's selection takes grasps the mask drops
-
-def test_the_method_told_the_mass_takes_the_surest_grasps_predicted_to_hold_it(tmp_path):
-    """ours_mass keeps the grasps scored >= 1.5 x m g and ranks them by validness; a binary
-    model has no score to keep them by (one sentence). make_cell tells it each round's mass
-    (test_benchmark_methods)."""
-    path = save_test_model(tmp_path / "gravgrasp.pt", validness_bias=0.0)
-    method = methods.METHODS["ours_mass"]
-    assert method.told_payload and method.file_of == "ours" and not methods.METHODS["ours"].told_payload
-    grid = np.zeros((40, 40, 40), np.float32)
-    grid[10:30, 10:30, 6:12] = 0.3
-    grid[10:30, 10:30, 12] = 0.5
-    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
-    every = methods.METHODS["ours"].make(str(path), p).detect((grid, 0.0075, np.zeros(3)))
-    scores = sorted(g.score_n for g in every)
-    mass_kg = scores[len(scores) // 2] / (9.81 * detection.PAYLOAD_SAFETY_FACTOR)  # half the grasps hold it
-    told = method.make(str(path), p, payload_kg=mass_kg).detect((grid, 0.0075, np.zeros(3)))
-    assert told and all(g.score_n >= detection.payload_min_score_n(mass_kg) for g in told)
-    assert [g.rank_key for g in told] == sorted((g.validness for g in told), reverse=True)
-    assert len(told) < len(every)
-    binary = save_test_model(tmp_path / "binary.pt", target="binary")
-    with pytest.raises(ValueError, match="has none"):
-        method.make(str(binary), p, payload_kg=1.0)
-
-
-def test_the_method_told_the_mass_by_calibration_prefers_what_held_it(tmp_path, monkeypatch):
-    """ours_told ranks by validness with the grasps scored >= held_payload_score_n(m) first
-    and the others after them: a mass no grasp is scored for leaves the validness ranking,
-    not an empty view as ours_mass's floor would."""
-    path = save_test_model(tmp_path / "gravgrasp.pt", validness_bias=0.0)
-    method = methods.METHODS["ours_told"]
-    assert method.told_payload and method.file_of == "ours"
-    grid = np.zeros((40, 40, 40), np.float32)
-    grid[10:30, 10:30, 6:12] = 0.3
-    grid[10:30, 10:30, 12] = 0.5
-    p = protocol.Protocol(validness_threshold=0.0, max_grasps=1000)
-    view = (grid, 0.0075, np.zeros(3))
-    by_validness = methods.METHODS["ours_mass"].make(str(path), p, payload_kg=0.0).detect(view)  # no floor
-    monkeypatch.setattr(detection, "EXECUTED_HOLD_OFFSET_N", 0.0)  # the untrained net scores ~7 N
-    scores = sorted(g.score_n for g in by_validness)
-    mass_kg = scores[len(scores) // 2] / (detection.EXECUTED_HOLD_N_PER_WEIGHT_N * 9.81)  # half are scored for it
-    told = method.make(str(path), p, payload_kg=mass_kg).detect(view)
-    strong = [g.score_n >= detection.held_payload_score_n(mass_kg) for g in told]
-    assert any(strong) and strong == sorted(strong, reverse=True)
-    assert [g.rank_key for g in told] == pytest.approx(
-        sorted((g.validness + s for g, s in zip(told, strong)), reverse=True), abs=1e-6)
-    # (a weaker grasp next to a preferred one loses the non-maximum suppression to it)
-    heavy = method.make(str(path), p, payload_kg=1e4).detect(view)
-    assert [g.voxel_index for g in heavy] == [g.voxel_index for g in by_validness]
-
-
-def save_test_model(path, validness_bias=5.0, target="gravity-score"):
-    """Random init, made to propose top-down grasps (closing along task y) at every
-    near-surface voxel, so a round executes real attempts."""
-    torch.manual_seed(0)
-    m = networks.GraspNet(score_scale_n=10.0)
-    with torch.no_grad():
-        m.head_score_validness.bias[1] = validness_bias
-        m.head_rotation.weight.mul_(1e-3)
-        m.head_rotation.bias.copy_(torch.tensor([1.0, 0, 0, 0, 0, -1.0]))
-    model_file.save_model(path, m, tsdf.TSDFVolume(resolution=40), training_data={"target": target})
-    return path
-
-
 def test_binary_model_ranks_by_validness(tmp_path):
     model, meta = model_file.load_model(save_test_model(tmp_path / "b.pt", validness_bias=0.0, target="binary"))
     assert model_file.training_target(meta) == "binary" and model_file.ranking(meta) == "validness"
@@ -506,7 +344,8 @@ def test_binary_model_ranks_by_validness(tmp_path):
     grid[10:30, 10:30, 6:12] = 0.3
     grid[10:30, 10:30, 12] = 0.5
     # a min-score threshold in N must not apply to probabilities
-    detect = gravgrasp_method.make_detect(model, meta, protocol.Protocol(validness_threshold=0.0, min_score_n=1e6))
+    p = protocol.Protocol(validness_threshold=0.0, min_score_n=1e6)
+    detect = gravgrasp_method.make_detect(model, p, gravgrasp_method.detection_options(meta, p))
     grasps = detect((grid, 0.0075, np.zeros(3)))
     assert grasps and all(math.isnan(g.score_n) for g in grasps)  # no score in N, not its probability
     assert [g.rank_key for g in grasps] == sorted((g.rank_key for g in grasps), reverse=True)
@@ -657,7 +496,7 @@ def test_a_recorded_round_replays_to_the_same_attempts_and_shows_the_closing_reg
     """replay_round: the first attempt of a fresh one-round run (the module's) comes out the
     same (pose and outcome), with what the detector saw between the pads; another model file
     or a round that was not run is one error line."""
-    from sim_bridge.benchmark import replay
+    from sim_bridge.analysis import replay
 
     models, out, _ = small_run
     model = models / "ours.pt"

@@ -66,7 +66,7 @@ def test_the_fit_recovers_the_score_a_grasp_needs(tmp_path, model, capsys):
 def test_copies_count_once_and_other_models_not_at_all(tmp_path, model):
     path, sha = model
     write_rounds(tmp_path / "a", sha, n_rounds=40)
-    write_rounds(tmp_path / "copy", sha, n_rounds=40)  # the same rounds, as benchmark.paired_run copies them
+    write_rounds(tmp_path / "copy", sha, n_rounds=40)  # the same rounds, as analysis.paired_run copies them
     write_rounds(tmp_path / "other", "0" * 64, n_rounds=40, seed=1)
     once = esc.load_attempts([tmp_path / "a"], sha)
     assert len(once) == 200
@@ -87,14 +87,15 @@ def test_bad_inputs_get_one_sentence(tmp_path, model, capsys):
     assert "between 0 and 1" in capsys.readouterr().err
 
 
-def test_the_detectors_constants_are_the_committed_calibration():
-    """detection.held_payload_score_n (ours_told's preference) says what the committed study
-    measured: rerunning the study without updating the constants fails here."""
+def test_the_calibration_file_is_the_committed_study():
+    """detection_levers.held_payload_score_n (ours_told's preference, from
+    models/calibration/gravgrasp_executed_hold.json) says what the committed study measured:
+    rerunning the study without updating the calibration file fails here."""
     import pathlib
 
-    from gravgrasp_detector.perception import detection
+    from sim_bridge.studies import detection_levers
     result = json.loads((pathlib.Path(__file__).parents[2] / "sim_bridge/results/executed_score_calibration.json")
                         .read_text())
     assert result["interval"]["hold_p"] == 0.8
     for m, needed in result["score_needed_n"]["0.8"].items():
-        assert detection.held_payload_score_n(float(m)) == pytest.approx(needed, abs=0.3)
+        assert detection_levers.held_payload_score_n(float(m)) == pytest.approx(needed, abs=0.3)

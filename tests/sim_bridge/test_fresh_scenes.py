@@ -2,7 +2,7 @@
 
 from test_run_vs_run import write_run
 
-from sim_bridge.benchmark import fresh_scenes
+from sim_bridge.analysis import fresh_scenes
 
 SCENES = ("packed_000", "pile_000", "packed_001", "pile_001")
 

@@ -1,7 +1,8 @@
 """sim_bridge's sub-packages import downwards only (sim_bridge/sim_bridge/__init__.py):
-physics at the bottom, then datagen and world side by side, benchmark, ros and studies on
-top. Only ros talks to ROS; nothing imports studies. Read from the source with `ast`, so an
-import inside a function counts."""
+physics at the bottom, then datagen and world side by side, benchmark, ros and analysis,
+studies on top. Only ros talks to ROS; nothing imports studies, and only studies import
+analysis. The benchmark holds the pipeline alone; studies are not installed executables.
+Read from the source with `ast`, so an import inside a function counts."""
 
 import ast
 import pathlib
@@ -18,8 +19,13 @@ ALLOWED = {  # sub-package -> the sub-packages it may import (besides itself and
     "world": {"physics"},
     "benchmark": {"physics", "datagen", "world"},
     "ros": {"physics", "world", "benchmark"},
-    "studies": {"physics", "datagen", "world", "benchmark"},  # and no sub-package imports studies
+    "analysis": {"physics", "datagen", "world", "benchmark"},  # only studies import analysis
+    "studies": {"physics", "datagen", "world", "benchmark", "analysis"},  # and no sub-package imports studies
 }
+# the benchmark's modules: the pipeline that runs and reports rounds (analysis of the
+# rounds lives in analysis/, the lever variants in studies/)
+BENCHMARK_PIPELINE = {"clutter_benchmark", "rounds", "protocol", "sim_cell", "clearing", "report", "paired",
+                      "failed_rounds", "machine", "results_table", "baselines_figure", "bench_round", "qualitative"}
 ROS_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "gravgrasp_msgs", "builtin_interfaces")
 
 
@@ -99,3 +105,25 @@ def test_the_check_sees_a_bad_import(tmp_path, monkeypatch):
     monkeypatch.setattr(sys.modules[__name__], "PACKAGE_DIR", fake)
     with pytest.raises(AssertionError, match="physics may import nothing"):
         test_imports_point_down(bad)
+
+
+def test_only_the_studies_import_the_analysis_tools():
+    wrong = [f"{p}:{line}: {module}" for p in _modules() if _sub_package(p) not in ("analysis", "studies")
+             for module, line in _imports(p) if module.startswith("sim_bridge.analysis")]
+    assert not wrong, "\n".join(wrong)
+    assert [sub for sub, allowed in ALLOWED.items() if "analysis" in allowed] == ["studies"]
+
+
+def test_the_benchmark_holds_the_pipeline_and_its_methods_only():
+    modules = {p.stem for p in (PACKAGE_DIR / "benchmark").glob("*.py")} - {"__init__"}
+    assert modules == BENCHMARK_PIPELINE, f"analysis belongs in sim_bridge/analysis: {sorted(modules - BENCHMARK_PIPELINE)}"
+    registry = (PACKAGE_DIR / "benchmark" / "methods" / "__init__.py").read_text()
+    for variant in ("ours_sure", "ours_expected", "ours_masked", "ours_told", "ours_mass", "binary_scored"):
+        assert f'"{variant}"' not in registry, f"{variant} is a study's variant: register it from the study"
+
+
+def test_no_study_or_analysis_tool_is_an_installed_executable():
+    """They run as `python -m sim_bridge.studies.<name>` / `sim_bridge.analysis.<name>`."""
+    setup = (PACKAGE_DIR.parent / "setup.py").read_text()
+    installed = [line for line in setup.splitlines() if "= sim_bridge." in line]
+    assert installed and not [line for line in installed if "sim_bridge.studies." in line or "sim_bridge.analysis." in line]

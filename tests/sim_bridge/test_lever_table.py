@@ -1,4 +1,4 @@
-"""sim_bridge/doc/levers.md's table is what `python -m sim_bridge.benchmark.lever_table`
+"""sim_bridge/doc/levers.md's table is what `python -m sim_bridge.analysis.lever_table`
 prints from the committed runs; a lever's cells come from its run's paired comparison and
 its attempts lost before the lift."""
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from sim_bridge.benchmark import lever_table
+from sim_bridge.analysis import lever_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -20,7 +20,7 @@ def test_the_doc_holds_what_the_command_prints(tag, lines):
     m = re.search(rf"<!-- {tag}: [^>]*-->\n(.*?)\n<!-- /{tag} -->", text, re.S)
     assert m, f"levers.md has no <!-- {tag} --> block"
     assert m.group(1).split("\n") == lines(ROOT), (f"levers.md's {tag} differs: run "
-                                                    "`python -m sim_bridge.benchmark.lever_table --write`")
+                                                    "`python -m sim_bridge.analysis.lever_table --write`")
 
 
 def test_write_rewrites_only_the_generated_blocks(tmp_path, monkeypatch):

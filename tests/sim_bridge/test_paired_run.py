@@ -1,4 +1,4 @@
-"""Pairing new methods with committed rounds (sim_bridge.benchmark.paired_run): it copies
+"""Pairing new methods with committed rounds (sim_bridge.analysis.paired_run): it copies
 the run's config, excluded objects, scenes and the named methods' rounds and nothing else;
 the benchmark then takes the copy as its own run (--report pools the copied rounds); it
 refuses, copying nothing, rounds of another model than the current one; a rerun is a
@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from sim_bridge.benchmark import clutter_benchmark as cb
-from sim_bridge.benchmark import failed_rounds, paired_run
+from sim_bridge.analysis import paired_run
+from sim_bridge.benchmark import failed_rounds
 
 REPO = Path(__file__).resolve().parents[2]
 COMMITTED = REPO / "sim_bridge/results/procedural_v4"

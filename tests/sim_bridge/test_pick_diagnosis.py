@@ -1,4 +1,4 @@
-"""benchmark.pick_diagnosis on a box seen from straight above: where a pick sits
+"""analysis.pick_diagnosis on a box seen from straight above: where a pick sits
 (inside / band / free / unobserved, VGN's mask) and how far its approach gets before the
 open hand meets the box or the table, against the analytic answer."""
 
@@ -8,7 +8,7 @@ import trimesh
 
 from gravgrasp_detector.perception.hand_clearance import ROBOTIQ_2F85
 from robotiq_driver.hand_geometry import FINGER_TIP_Z_M
-from sim_bridge.benchmark import pick_diagnosis as pd
+from sim_bridge.analysis import pick_diagnosis as pd
 
 SIZE_M, RES, TRUNC_M = 0.30, 40, 0.03
 TABLE_Z, TOP_Z = 0.05, 0.10  # the box: 10 x 10 cm footprint centred at (0.15, 0.15), 5 cm tall

@@ -2,7 +2,7 @@
 
 import json
 
-from sim_bridge.benchmark import run_vs_run
+from sim_bridge.analysis import run_vs_run
 
 
 def write_run(run, rounds, scenes=("packed_000", "pile_000")):

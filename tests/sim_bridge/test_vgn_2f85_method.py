@@ -13,7 +13,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from gravgrasp_detector.perception import hand_clearance
-from gravgrasp_detector.perception.detection import DetectionOptions
+from gravgrasp_detector.execution.executor import ExecutionLimits
 from robotiq_driver import hand_geometry
 from sim_bridge.benchmark import methods, sim_cell
 from sim_bridge.benchmark.methods import vgn, vgn_2f85
@@ -122,7 +122,7 @@ def test_the_detector_is_vgns_with_every_grasp_converted(weights_file, clear_han
     if clear_hand:  # the 2F-85's own open hand, swept from the pre-grasp, against the view
         points = hand_clearance.occupied_points(tsdf[0], tsdf[1], tsdf[2])
         hit = hand_clearance.hands_collide(np.array([g.pose for g in expected]), points, tsdf[1],
-                                           DetectionOptions.pregrasp_distance_m, sim_cell.HAND_GEOMETRY["2f85"])
+                                           ExecutionLimits.pregrasp_distance_m, sim_cell.HAND_GEOMETRY["2f85"])
         assert hit.any() and not hit.all()  # the check keeps some and drops some
         expected = [g for g, h in zip(expected, hit) if not h]
     expected = expected[:protocol.max_grasps]

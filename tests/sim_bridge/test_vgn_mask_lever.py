@@ -1,14 +1,15 @@
-"""VGN's mask as a switch of the project's detection (DetectionOptions.free_space_mask,
-issue 42's selection lever): the band it keeps, and the candidates it lets through at
-the voxel ("tcp") and where VGN's TCP would sit on the approach ("finger_base")."""
-import dataclasses
-
+"""VGN's mask (benchmark.methods.vgn.free_space_band) as a selection lever on the project's
+detection (studies.detection_levers.VGN_MASKS, a restriction of the candidates): the band
+it keeps, and the candidates it lets through at the voxel ("tcp") and where VGN's TCP would
+sit on the approach ("finger_base")."""
 import numpy as np
 import pytest
 import torch
 from scipy import ndimage
 
 from gravgrasp_detector.perception import detection
+from sim_bridge.benchmark.methods.vgn import FINGER_BASE_Z_M, free_space_band
+from sim_bridge.studies.detection_levers import VGN_MASKS
 
 VS = 0.0075
 R = 40
@@ -25,7 +26,7 @@ def table_grid():
 
 
 def test_the_band_is_free_space_and_two_steps_beyond_never_inside():
-    band = detection.free_space_band(table_grid())
+    band = free_space_band(table_grid())
     kept_k = np.flatnonzero(band[20, 20].numpy()).tolist()
     assert kept_k == [7, 8, 9, 10, 11, 12]  # free space + 2 dilations up, none into k = 3..6
     assert band.dtype == torch.bool and bool(band[:, :, 7:13].all())
@@ -39,8 +40,8 @@ def test_the_band_is_vgns_masked_binary_dilation(seed):
     grid = np.random.default_rng(seed).choice(values, size=(R, R, R), p=[0.5, 0.05, 0.05, 0.15, 0.05, 0.1, 0.1])
     inside = (grid > 1e-3) & (grid < 0.5)
     expected = ndimage.binary_dilation(grid > 0.5, iterations=2, mask=~inside)
-    np.testing.assert_array_equal(detection.free_space_band(grid).numpy(), expected)
-    np.testing.assert_array_equal(detection.free_space_band(torch.from_numpy(grid)).numpy(), expected)
+    np.testing.assert_array_equal(free_space_band(grid).numpy(), expected)
+    np.testing.assert_array_equal(free_space_band(torch.from_numpy(grid)).numpy(), expected)
 
 
 def top_down_channels(index):
@@ -52,13 +53,20 @@ def top_down_channels(index):
 INSIDE, BAND, FAR = (10, 10, 4), (20, 20, 8), (30, 30, 15)
 
 
+def masked(mask):
+    """select_grasps' from_candidates step restricting the candidates to VGN_MASKS[mask] ("off": none)."""
+    if mask == "off":
+        return None
+    return lambda grid, candidate, ranked, poses_at: ranked(candidate & VGN_MASKS[mask](grid, candidate, poses_at, VS))
+
+
 def select(mask):
     score, validness = torch.zeros(R, R, R), torch.ones(R, R, R)
     for index, value in ((INSIDE, 9.0), (BAND, 5.0), (FAR, 7.0)):
         score[index] = value
-    options = detection.DetectionOptions(min_surface_voxels=0, surface_distance_voxels=10, free_space_mask=mask)
+    options = detection.DetectionOptions(min_surface_voxels=0, surface_distance_voxels=10)
     grasps = detection.select_grasps(table_grid(), score, validness, top_down_channels, "ex-ez", VS, (0, 0, 0),
-                                     options)
+                                     options, from_candidates=masked(mask))
     return [g.voxel_index for g in grasps]
 
 
@@ -74,13 +82,8 @@ def test_at_the_finger_base_the_mask_is_tested_up_the_approach():
     # a top-down grasp's finger base is FINGER_BASE_Z_M (-4.6 cm: 6.1 voxels) up the
     # approach from its TCP: above the inside candidate (k 4 -> 10) it is on the band, above
     # the band one (k 8 -> 14) and the far one (k 15 -> 21) beyond it
-    assert [int(((k + 0.5) * VS - detection.FINGER_BASE_Z_M) / VS) for k in (4, 8, 15)] == [10, 14, 21]
+    assert [int(((k + 0.5) * VS - FINGER_BASE_Z_M) / VS) for k in (4, 8, 15)] == [10, 14, 21]
     assert select("finger_base") == [INSIDE]
-
-
-def test_a_mask_not_known_is_one_clear_error():
-    with pytest.raises(ValueError, match=r"free_space_mask 'vgn'.*'off', 'tcp', 'finger_base'"):
-        detection.DetectionOptions(free_space_mask="vgn")
 
 
 def tilted_channels(index):
@@ -96,12 +99,12 @@ def test_finger_base_keeps_what_the_mask_keeps_at_each_candidates_own_approach()
     rng = np.random.default_rng(0)
     score = torch.from_numpy(ndimage.gaussian_filter(rng.random((R, R, R)), 3).astype(np.float32)) * 100
     validness = torch.from_numpy(rng.random((R, R, R)).astype(np.float32))
-    options = detection.DetectionOptions(max_grasps=5, free_space_mask="finger_base")
+    options = detection.DetectionOptions(max_grasps=5)
     grid = table_grid()
-    grasps = detection.select_grasps(grid, score, validness, tilted_channels, "ex-ez", VS, (0, 0, 0), options)
-    band = detection.free_space_band(grid)
-    bases = [g.pose[:3, 3] + detection.FINGER_BASE_Z_M * g.pose[:3, 2] for g in grasps]
-    assert len(grasps) == 5 and detection.band_keeps(band, np.array(bases), VS).all()
-    off = detection.select_grasps(grid, score, validness, tilted_channels, "ex-ez", VS, (0, 0, 0),
-                                  dataclasses.replace(options, free_space_mask="off"))
+    grasps = detection.select_grasps(grid, score, validness, tilted_channels, "ex-ez", VS, (0, 0, 0), options,
+                                     from_candidates=masked("finger_base"))
+    band = free_space_band(grid).numpy()
+    bases = np.floor(np.array([g.pose[:3, 3] + FINGER_BASE_Z_M * g.pose[:3, 2] for g in grasps]) / VS).astype(int)
+    assert len(grasps) == 5 and band[tuple(bases.T)].all()
+    off = detection.select_grasps(grid, score, validness, tilted_channels, "ex-ez", VS, (0, 0, 0), options)
     assert [g.voxel_index for g in off] != [g.voxel_index for g in grasps]  # it took some of the paper's picks

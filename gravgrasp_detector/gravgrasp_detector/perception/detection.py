@@ -7,25 +7,12 @@ numpy until the final few grasps):
    its training domain far from anything it saw. Voxels inside objects and in
    occluded space are kept: a power grasp's TCP can lie inside the object, and the
    learned validness head (paper Sec. V) is what rejects bad ones.
-   (`free_space_mask`, "off" by default: the paper has no such step) VGN's mask keeps
-   only voxels within 2 six-connected dilations of observed free space (grid > 0.5:
-   the band in front of a surface) that do not enter observed inside (1e-3 < grid <
-   0.5): `free_space_band`, the rule benchmark.methods.vgn applies to VGN's grid,
-   whose convention this grid shares (tsdf.py). "tcp" tests it at the candidate voxel.
-   But VGN's TCP is the Panda's finger base and this one the pinch point between the
-   pads, inside what a grasp holds, so there it keeps only grasps that pinch in front
-   of a surface; "finger_base" tests it where VGN's TCP would sit on the candidate's
-   approach, FINGER_BASE_Z_M (5 cm, VGN's finger depth, behind the finger tips),
-   from every candidate's rotation (VGN masks before its non-maximum suppression).
 2. validness = sigmoid(logit) >= validness_threshold and score_n >= min_score_n (and
-   > 0 when ranked by a score, rank_by "score" or "expected_score"). Ranked by
-   validness, a model with a score still applies min_score_n: the surest grasps among
-   those predicted to hold a known payload (min_score_n = mass x g x a safety factor,
-   `payload_min_score_n`); a binary model has no score to apply it to. With
-   `prefer_score_n` the grasps scored at least that come first instead, the others after
-   them (`held_payload_score_n`: what executed grasps needed to hold a payload).
-3. non-maximum suppression: keep a voxel only if its ranking key (rank_by: the score,
-   validness or validness x score) is the maximum of the surviving keys in its
+   > 0 when ranked by the score, rank_by "score": the paper's rule). A binary model
+   (rank_by "validness") has no score: its validness is its success probability.
+   min_score_n = a known payload's mass x g x a safety factor (`payload_min_score_n`).
+3. non-maximum suppression: keep a voxel only if its ranking key (the score, or validness
+   for a binary model) is the maximum of the surviving keys in its
    (2 * nms_radius_voxels + 1)^3 neighbourhood.
 4. rank by that key (highest first), evaluate the rotation head only at the first few
    voxels and rebuild R (rotation.py).
@@ -35,12 +22,9 @@ numpy until the final few grasps):
    `max_grasps`.  Validness is over-confident next to objects and in unobserved space
    (a real D435 frame gave grasps 6 cm from any observed surface); this is the cheap
    geometric veto the paper's learned validness should make unnecessary.
-6. (`clear_hand`, off by default: the paper has no such step) the open hand, swept
-   from the pre-grasp along the approach, clears the observed scene: the executor's own
-   check (hand_clearance). A grasp that fails it is taken out of the candidates and
-   steps 3-5 run again, so that NMS no longer lets it hide the neighbours the hand can
-   reach (a grasp one voxel too deep in a glass suppressed 173 clear ones around it, and
-   the executor refused the only grasp published).
+Other selections (the benchmark's and the studies': another ranking, a mask on the
+candidates, a rerun of steps 3-5) are built from the same steps: `network_outputs`, then
+`select_grasps` with a `rank_key` and a `from_candidates` of their own.
 With precision bf16 only the backbone runs in bf16 (autocast); the score/validness
 head runs in float32 on its output, so bf16 rounding of the outputs (8 mantissa
 bits: 0.125 N at 30 N) does not decide near-ties.
@@ -55,7 +39,7 @@ import torch
 
 from robotiq_driver.hand_geometry import FINGER_TIP_Z_M, MAX_STROKE_M, PAD_WIDTH_M, PALM_FACE_Z_M
 
-from . import hand_clearance, rotation
+from . import rotation
 from .tsdf import InputError
 
 # Where an object must be for the closing fingers to meet it (TCP frame, metres).
@@ -63,12 +47,7 @@ CLOSING_REGION_TCP = np.array([[-PAD_WIDTH_M / 2, -MAX_STROKE_M / 2, PALM_FACE_Z
                                [PAD_WIDTH_M / 2, MAX_STROKE_M / 2, FINGER_TIP_Z_M]])
 
 PRECISIONS = ("auto", "bf16", "fp32")
-RANKINGS = ("score", "validness", "expected_score")
-FREE_SPACE_MASKS = ("off", "tcp", "finger_base")
-# VGN's finger depth (its TCP -> the finger tips): its TCP is the Panda's finger base
-VGN_FINGER_DEPTH_M = 0.05
-FINGER_BASE_Z_M = FINGER_TIP_Z_M - VGN_FINGER_DEPTH_M  # where VGN's TCP would sit, in this TCP frame
-FREE_SPACE_DILATIONS = 2  # VGN's detection.py
+RANKINGS = ("score", "validness")
 G_MPS2 = 9.81
 # A known payload asks for grasps predicted to hold this many times its weight: the
 # score's error is ~13 N (doc/score-calibration.md) and executed grasps hold less than
@@ -82,22 +61,6 @@ def payload_min_score_n(mass_kg, safety_factor=PAYLOAD_SAFETY_FACTOR):
         raise ValueError(f"payload {mass_kg} kg, safety factor {safety_factor}: give a mass >= 0 kg and a "
                          "factor >= 1 (a grasp must hold at least the weight)")
     return mass_kg * G_MPS2 * safety_factor
-
-
-# The predicted score [N] at which the benchmark's executed grasps of Ours v4 held a payload
-# 4 times in 5 once in the closed hand: an offset plus newtons of score per newton of weight
-# (studies/executed_score_calibration.py on the v4 tuning rounds:
-# sim_bridge/results/executed_score_calibration.json, 989 placed attempts; 59.6 N at 1.5 kg,
-# 95 % interval 54.7-64.2 N, where 1.5 x m g is 22 N).
-EXECUTED_HOLD_OFFSET_N = 35.5
-EXECUTED_HOLD_N_PER_WEIGHT_N = 1.64
-
-
-def held_payload_score_n(mass_kg):
-    """The predicted score [N] that executed grasps needed to hold `mass_kg` 4 times in 5."""
-    if not (math.isfinite(mass_kg) and mass_kg >= 0):
-        raise ValueError(f"payload {mass_kg} kg: give a mass >= 0 kg")
-    return EXECUTED_HOLD_OFFSET_N + EXECUTED_HOLD_N_PER_WEIGHT_N * mass_kg * G_MPS2
 
 
 @dataclass(frozen=True)
@@ -114,38 +77,20 @@ class DetectionOptions:
     # "bf16" (autocast + channels_last_3d), "fp32", or "auto" (bf16 where the CPU has
     # AMX, see bf16_faster)
     precision: str = "fp32"
-    # "score" (the gravity-rejection score [N]: the paper's rule), "validness" (a model
-    # trained with --target binary: its validness is its success probability), or
-    # "expected_score" (validness x score: a voxel that barely passes the threshold with a
-    # high score, which the score head was never trained at, no longer outranks a sure
-    # one); `model_file.ranking(metadata)` says which a model needs
+    # "score" (the gravity-rejection score [N]: the paper's rule) or "validness" (a model
+    # trained with --target binary: its validness is its success probability);
+    # `model_file.ranking(metadata)` says which a model needs
     rank_by: str = "score"
     # False for a model without a gravity-rejection score (trained with --target binary:
     # its score head is untrained): its grasps carry score_n NaN, and only rank_by
     # "validness" applies. `model_file.has_score(metadata)` says which.
     has_score: bool = True
-    clear_hand: bool = False  # step 6
-    # VGN's mask (step 1): "off" (the paper's selection), "tcp" (at the candidate voxel)
-    # or "finger_base" (where VGN's TCP would sit on the candidate's approach)
-    free_space_mask: str = "off"
-    pregrasp_distance_m: float = 0.05  # where step 6's approach starts (the executor's)
-    # [N]; ranked by validness, the grasps scored at least this come first and the rest
-    # after them, also by validness (a known payload's need, `held_payload_score_n`: unlike
-    # min_score_n it never leaves a view without a grasp); 0: no preference
-    prefer_score_n: float = 0.0
 
     def __post_init__(self):
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.rank_by not in RANKINGS:
             raise ValueError(f"rank_by {self.rank_by!r}: use one of {RANKINGS}")
-        if self.free_space_mask not in FREE_SPACE_MASKS:
-            raise ValueError(f"free_space_mask {self.free_space_mask!r}: use one of {FREE_SPACE_MASKS}")
-        if not (math.isfinite(self.prefer_score_n) and self.prefer_score_n >= 0):
-            raise ValueError(f"prefer_score_n {self.prefer_score_n}: give a score >= 0 N (0: no preference)")
-        if self.prefer_score_n > 0 and not (self.has_score and self.rank_by == "validness"):
-            raise ValueError("prefer_score_n orders a score model's grasps ranked by validness: use rank_by "
-                             "'validness' with a model that has a gravity-rejection score")
         if not self.has_score and self.rank_by != "validness":
             raise ValueError(f"rank_by {self.rank_by!r} needs a gravity-rejection score, and has_score is False "
                              "(a model trained with --target binary): rank by 'validness'")
@@ -159,9 +104,8 @@ class Grasp:
     score_n: float
     validness: float  # [0, 1]
     voxel_index: tuple  # (i, j, k)
-    # what the grasps were ranked by, higher first (rank_by: score_n, validness or
-    # validness x score_n; 1 + validness for a grasp prefer_score_n prefers); None (a
-    # grasp made by hand): score_n
+    # what the grasps were ranked by, higher first (score_n or validness, or a caller's
+    # rank_key); None (a grasp made by hand): score_n
     rank_key: float | None = None
 
     def __post_init__(self):
@@ -233,47 +177,34 @@ def check_grid(tsdf_grid, resolution):
 
 
 @torch.inference_mode()
-def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), options=DetectionOptions(),
-                  score_model=None):
+def detect_grasps(model, tsdf_grid, voxel_size_m, origin=(0.0, 0.0, 0.0), options=DetectionOptions()):
     """Ranked grasps (list of Grasp, best first) in the TSDF's frame.
 
     With options.rank_by "score" they are ranked by the gravity-rejection score [N], at
-    least options.min_score_n; with "validness" by validness (among grasps of at least
-    min_score_n when the model has a score); with "expected_score" by validness x score. Each Grasp's score_n is the
-    score in N (NaN when options.has_score is False: a binary model's score head is
-    untrained) and its rank_key what it was ranked by.
+    least options.min_score_n; with "validness" (a binary model) by validness. Each
+    Grasp's score_n is the score in N (NaN when options.has_score is False: a binary
+    model's score head is untrained) and its rank_key what it was ranked by.
 
     model: networks.GraspNet (eval mode). tsdf_grid: (R, R, R) float32 in tsdf.py's
     value convention. origin: the grid corner in the task frame (3-vector or 4x4).
-    score_model: another GraspNet whose score [N] stands for `model`'s (its validness and
-    rotations still place the grasps): a binary model places, a score model ranks among
-    the grasps it is sure of (options.has_score then says whether score_model has one).
     Raises InputError for an unusable grid.
     """
     grid = torch.as_tensor(np.asarray(tsdf_grid, dtype=np.float32))
-    half, score_n, validness_logit = _network_outputs(model, grid, options.precision)
-    if score_model is not None:
-        _, score_n, _ = _network_outputs(score_model, grid, options.precision)
-    validness = torch.sigmoid(validness_logit[0])
-    score_n = score_n[0] if options.has_score else None
-    rank_key = score_n * validness if options.rank_by == "expected_score" else None
-    if options.prefer_score_n > 0:  # validness in [0, 1]: the preferred ones first
-        rank_key = validness + (score_n >= options.prefer_score_n).float()
-    return select_grasps(
-        grid,
-        score_n,
-        validness,
-        lambda index: model.rotation_at(half, index, half=True),
-        model.rotation_representation,
-        voxel_size_m,
-        origin,
-        options,
-        rank_key,
-    )
+    half, score_n, validness = network_outputs(model, grid, options.precision)
+    return select_grasps(grid, score_n if options.has_score else None, validness,
+                         rotations_at(model, half), model.rotation_representation, voxel_size_m, origin, options)
 
 
-def _network_outputs(model, grid, precision):
-    """(half-resolution features, score_n, validness logit) of `model` on the (R, R, R) grid."""
+def rotations_at(model, half):
+    """(N, 3) voxel indices -> (N, C) rotation channels of `model` (select_grasps'
+    rotation_channels_at), from network_outputs' `half`."""
+    return lambda index: model.rotation_at(half, index, half=True)
+
+
+@torch.inference_mode()
+def network_outputs(model, grid, precision):
+    """(half-resolution features, score_n [N], validness in [0, 1]), (R, R, R) each but the
+    features, of `model` on the (R, R, R) grid (a tensor); InputError for an unusable grid."""
     precision = resolve_precision(precision)
     check_grid(grid, model.resolution)
     layout = _prepare(model, precision)
@@ -285,7 +216,7 @@ def _network_outputs(model, grid, precision):
     # mantissa bits (0.125 N at 30 N) and let rounding decide near-ties.
     half = half.float()
     score_n, validness_logit = model.score_and_validness_from_half(half)
-    return half, score_n, validness_logit
+    return half, score_n[0], torch.sigmoid(validness_logit[0])
 
 
 def surface_voxel_centres(grid, voxel_size_m, origin=(0.0, 0.0, 0.0)):
@@ -342,54 +273,6 @@ def near_surface_mask(grid, surface_distance_voxels):
     return cube_max((grid > 0) & (grid <= 0.5), surface_distance_voxels)
 
 
-def free_space_band(grid):
-    """(R, R, R) bool tensor: VGN's mask (its detection.py's `process`) on a grid in tsdf.py's
-    convention, numpy or torch: observed free space (grid > 0.5), grown by FREE_SPACE_DILATIONS
-    six-connected steps that never enter observed inside (1e-3 < grid < 0.5). scipy's
-    binary_dilation(grid > 0.5, iterations=2, mask=~inside), as VGN calls it."""
-    grid = torch.as_tensor(grid)
-    may_grow = ~((grid > 1e-3) & (grid < 0.5))
-    kept = grid > 0.5
-    for _ in range(FREE_SPACE_DILATIONS):
-        grown = kept.clone()
-        for dim in range(3):
-            n = kept.shape[dim]
-            ahead, behind = grown.narrow(dim, 1, n - 1), grown.narrow(dim, 0, n - 1)
-            ahead |= kept.narrow(dim, 0, n - 1)
-            behind |= kept.narrow(dim, 1, n - 1)
-        kept = kept | (grown & may_grow)
-    return kept
-
-
-def band_keeps(band, points_grid, voxel_size_m):
-    """(N,) bool: whether the voxels holding points (N, 3) of the grid's frame are in
-    `band` (free_space_band); a point outside the volume is not."""
-    ijk = np.floor(np.asarray(points_grid, float).reshape(-1, 3) / voxel_size_m).astype(int)
-    inside = np.all((ijk >= 0) & (ijk < np.array(band.shape)), axis=1)
-    keeps = np.zeros(len(ijk), bool)
-    keeps[inside] = band.numpy()[tuple(ijk[inside].T)]
-    return keeps
-
-
-def free_space_mask(grid, candidate, poses_at, voxel_size_m, where):
-    """(R, R, R) bool: the candidate voxels VGN's mask (free_space_band) keeps, tested at
-    the voxel (where "tcp") or at the point FINGER_BASE_Z_M along each candidate's
-    approach ("finger_base": every candidate's rotation, as VGN masks before its
-    non-maximum suppression; about 10x the detection's time without a mask,
-    `bench_detect --free-space-mask finger_base`).
-    poses_at: (N, 3) voxel indices -> (N, 4, 4) poses in the grid's frame."""
-    band = free_space_band(grid)
-    if where == "tcp":
-        return band
-    index = candidate.nonzero()
-    keeps = torch.zeros_like(candidate)
-    if len(index):
-        poses = poses_at(index)
-        at_base = band_keeps(band, poses[:, :3, 3] + FINGER_BASE_Z_M * poses[:, :3, 2], voxel_size_m)
-        keeps[tuple(index[torch.as_tensor(at_base)].T)] = True
-    return keeps
-
-
 def select_grasps(
     grid,
     score_n,
@@ -400,19 +283,25 @@ def select_grasps(
     origin=(0.0, 0.0, 0.0),
     options=DetectionOptions(),
     rank_key=None,
+    from_candidates=None,
 ):
     """Steps 1-5 of the module doc on network outputs, ranked (and suppressed) by
-    ``rank_key``, by default ``score_n``, or validness with options.rank_by "validness"
-    (options' precision is the caller's: it chose the outputs).
+    ``score_n``, or validness with options.rank_by "validness" (options' precision is the
+    caller's: it chose the outputs).
 
-    grid, score_n, validness, rank_key: (R, R, R) tensors; score_n None for a model
-    without a score (its grasps carry score_n NaN; rank_by must be "validness"): a NaN
-    score is refused rather than let it drop (or keep) every voxel. rotation_channels_at:
-    callable (N, 3) long voxel indices -> (N, C) rotation channels.
+    grid, score_n, validness: (R, R, R) tensors; score_n None for a model without a score
+    (its grasps carry score_n NaN; rank_by must be "validness"): a NaN score is refused
+    rather than let it drop (or keep) every voxel. rotation_channels_at: callable (N, 3)
+    long voxel indices -> (N, C) rotation channels.
+    A caller's own selection (the benchmark's and the studies', not the node's):
+    rank_key, an (R, R, R) tensor ranking the candidates instead; from_candidates(grid,
+    candidate, ranked, poses_at) -> (index (N, 3), poses (N, 4, 4)), the grasps from the
+    candidate mask of steps 1-2, by default ``ranked(candidate)`` (steps 3-5), with
+    poses_at: (N, 3) voxel indices -> (N, 4, 4) poses, both in the grid's frame.
     """
     grid = torch.as_tensor(grid)
     validness = torch.as_tensor(validness).float()
-    by_score = options.rank_by != "validness"
+    by_score = options.rank_by == "score"
     if score_n is not None:
         score_n = torch.as_tensor(score_n).float()
         if bool(torch.isnan(score_n).any()):
@@ -442,15 +331,12 @@ def select_grasps(
         poses[:, 3, 3] = 1.0
         return poses
 
-    if options.free_space_mask != "off":
-        candidate &= free_space_mask(grid, candidate, poses_at, voxel_size_m, options.free_space_mask)
-
     def ranked(candidate):  # steps 3-5
         return _ranked_poses(grid, candidate, key, poses_at, voxel_size_m, options)
-    grasps = ranked(candidate)
-    if options.clear_hand:
-        grasps = _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options)
-    index, poses = grasps
+    if from_candidates is None:
+        index, poses = ranked(candidate)
+    else:
+        index, poses = from_candidates(grid, candidate, ranked, poses_at)
     if len(index) == 0:
         return []
     at = tuple(index.T)
@@ -490,43 +376,4 @@ def _ranked_poses(grid, candidate, key, poses_at, voxel_size_m, options):
                 break
         keep = np.asarray(kept, int)
     keep = torch.as_tensor(keep[:max_grasps], dtype=torch.long)
-    return index[keep], poses[keep.numpy()]
-
-
-CLEAR_HAND_ROUNDS = 8  # step 6's reruns of steps 3-5; what still collides after them is dropped
-
-
-def _clear_hand(grid, candidate, grasps, ranked, poses_at, voxel_size_m, options):
-    """Step 6: take grasps whose open hand meets the observed scene out of `candidate` and
-    rank again (`ranked`: candidate mask -> steps 3-5), until the grasps kept clear it.
-    A grasp that collides is checked with the candidates of its NMS neighbourhood (those it
-    suppressed) at once: its neighbours one voxel deeper mostly collide too."""
-    points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m)  # the grid's frame, as the poses
-    candidate = candidate.clone()
-    clear = torch.zeros_like(candidate)
-    checked = torch.zeros_like(candidate)
-
-    def check(index, poses):
-        hit = hand_clearance.hands_collide(poses, points, voxel_size_m, options.pregrasp_distance_m)
-        clear[tuple(index.T)] = torch.as_tensor(~hit)
-        checked[tuple(index.T)] = True
-
-    r = max(int(options.nms_radius_voxels), 0)
-    for _ in range(CLEAR_HAND_ROUNDS):
-        index, poses = grasps
-        new = ~checked[tuple(index.T)]
-        check(index[new], poses[new.numpy()])
-        blocked = index[~clear[tuple(index.T)]]
-        if len(blocked) == 0:
-            return grasps
-        near = torch.zeros_like(candidate)
-        for i, j, k in blocked.tolist():
-            near[max(i - r, 0):i + r + 1, max(j - r, 0):j + r + 1, max(k - r, 0):k + r + 1] = True
-        near_index = (near & candidate & ~checked).nonzero()
-        if len(near_index):
-            check(near_index, poses_at(near_index))
-        candidate &= ~checked | clear
-        grasps = ranked(candidate)
-    index, poses = grasps
-    keep = (checked & clear)[tuple(index.T)]
     return index[keep], poses[keep.numpy()]

@@ -106,23 +106,11 @@ def has_score(metadata: dict) -> bool:
     return training_target(metadata) != "binary"
 
 
-RANKING_CHOICES = ("model", "score", "expected_score", "validness")
-
-
-def ranking(metadata: dict, requested: str = "model") -> str:
-    """How detection ranks this model's grasps (detection.DetectionOptions.rank_by).
-    "model": "validness" for a model trained with `--target binary`, else "score" (the
-    paper's rule); "score" and "expected_score" (validness x score) need a score in N, so
-    a binary model refuses them (ModelFileError); "validness" suits any model."""
-    if requested not in RANKING_CHOICES:
-        raise ModelFileError(f"ranking {requested!r}: use one of {', '.join(RANKING_CHOICES)}")
-    binary = not has_score(metadata)
-    if requested == "model":
-        return "validness" if binary else "score"
-    if binary and requested != "validness":
-        raise ModelFileError(f"ranking {requested!r} needs a score in N, and this model was trained with "
-                             "--target binary (validness only): use ranking 'model' or 'validness'")
-    return requested
+def ranking(metadata: dict) -> str:
+    """How detection ranks this model's grasps (detection.DetectionOptions.rank_by):
+    "validness" for a model trained with `--target binary` (its validness is its success
+    probability), else "score" (the paper's rule)."""
+    return "score" if has_score(metadata) else "validness"
 
 
 def file_sha256(path) -> str:
@@ -180,29 +168,6 @@ def load_model(path):
             "corrupt or was edited; re-export it"
         ) from None
     return model.eval(), metadata
-
-
-def load_score_model(path, placing_metadata):
-    """-> (model, metadata) of a score model that ranks another model's grasps
-    (detection.detect_grasps' score_model): one with a gravity-rejection score, on the same
-    TSDF as the model that places them (`placing_metadata`). Raises ModelFileError."""
-    model, metadata = load_model(path)
-    if not has_score(metadata):
-        raise ModelFileError(f"score model {os.path.abspath(os.fspath(path))} was trained with --target binary: "
-                             "it has no gravity-rejection score to rank by; give a score model (models/gravgrasp.pt)")
-    scoring, placing = metadata["tsdf"], placing_metadata["tsdf"]
-
-    def same(key):
-        if key in ("voxel_size_m", "truncation_m"):
-            return abs(scoring[key] - placing[key]) <= 1e-9
-        return scoring.get(key) == placing.get(key)
-
-    differ = [f"{k} {scoring.get(k)} (placing model: {placing.get(k)})"
-              for k in ("resolution", "voxel_size_m", "truncation_m", "convention") if not same(k)]
-    if differ:
-        raise ModelFileError(f"score model {os.path.abspath(os.fspath(path))} reads another TSDF than the model "
-                             f"that places the grasps: {', '.join(differ)}; give one trained on the same volume")
-    return model, metadata
 
 
 def check_volume(metadata, resolution, voxel_size_m, truncation_m, convention=tsdf.TSDF_CONVENTION):

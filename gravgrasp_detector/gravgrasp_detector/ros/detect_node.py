@@ -72,25 +72,17 @@ def volume_grid(msg, metadata):
     return grid, T
 
 
-def startup_lines(model_path, metadata, precision, threads, rank_by=None, score_model=None):
+def startup_lines(model_path, metadata, precision, threads):
     """What the node tells a user at start-up: one short line per fact (the model's
-    whole training summary is in its card, models/<name>.md; score_model: the
-    score_model_path parameter as given, when another model's score ranks)."""
+    whole training summary is in its card, models/<name>.md)."""
     root = os.environ.get("GRAVGRASP_ROOT", os.getcwd())
     shown = os.path.relpath(model_path, root) if model_path.startswith(root.rstrip("/") + "/") else model_path
     net, grid, td = metadata["network"], metadata["tsdf"], metadata.get("training_data") or {}
     lines = [f"model: {shown}",
              f"model input: {grid['resolution']}^3 TSDF, {grid['voxel_size_m'] * 1e3:g} mm voxels",
              f"model output: {model_file.training_target(metadata)}, rotation {net['rotation_representation']}"]
-    rank_by = rank_by or model_file.ranking(metadata)
-    if score_model:
-        lines.append(f"grasps placed by {os.path.basename(model_path)}, ranked by the score in N of {score_model} "
-                     f"({rank_by})")
-    elif rank_by == "validness":
-        lines.append("grasps ranked by validness" + ("" if model_file.has_score(metadata) else
-                                                     " (a binary model: no score in N, it publishes NaN)"))
-    elif rank_by == "expected_score":
-        lines.append("grasps ranked by validness x score; each carries its score in N")
+    if not model_file.has_score(metadata):
+        lines.append("grasps ranked by validness (a binary model: no score in N, it publishes NaN)")
     if "scenes_train" in td:
         lines.append(f"model trained: {td['scenes_train']} + {td.get('scenes_val', 0)} scenes"
                      + (f" from {td['data']}" if td.get("data") else "")
@@ -109,11 +101,6 @@ class DetectNode(Node):
         model_path = p("model_path", DEFAULT_MODEL, described(
             "Model file (.pt with metadata); relative to $GRAVGRASP_ROOT or the working directory",
             read_only=True)).value
-        score_model_path = p("score_model_path", "", described(
-            "Another model file whose gravity-rejection score ranks model_path's grasps and is published "
-            "with them; model_path still places them (validness, threshold, poses). E.g. model_path "
-            "gravgrasp_binary.pt, score_model_path gravgrasp.pt, validness_threshold 0.9: the benchmark's "
-            "binary_scored. '' (default): model_path's own score", read_only=True)).value
         p("validness_threshold", 0.5, float_range("Least predicted validness of a returned grasp", 0.0, 1.0))
         p("min_score_n", 0.0, float_range(
             "Least gravity-rejection score of a returned grasp, N (e.g. object weight x g x safety factor)",
@@ -121,19 +108,7 @@ class DetectNode(Node):
         p("max_grasps", 20, int_range("Most grasps per volume", 1, 1000))
         p("surface_distance_voxels", 6, int_range("Candidates lie within this many voxels of an observed surface", 1, 40))
         p("nms_radius_voxels", 2, int_range("Non-maximum suppression radius, voxels (0 = off)", 0, 10))
-        ranking = p("ranking", "model", described(
-            "How grasps are ranked among those past the thresholds: 'model' (a score model by its "
-            "gravity-rejection score, the paper's rule; a binary model by validness), 'score', "
-            "'expected_score' (validness x score), or 'validness' (a score model: the surest among grasps of at "
-            "least min_score_n, e.g. a known payload's weight x g x safety factor)", read_only=True)).value
         p("pregrasp_distance_m", 0.05, float_range("Stand-off along -z of the TCP for the pre-grasp pose, m", 0.0, 0.5))
-        p("clear_hand", False, described(
-            "Publish only grasps whose open hand, swept from the pre-grasp, clears the observed scene (the "
-            "executor's check), letting a refused grasp's neighbours through NMS; off: the paper's selection"))
-        p("free_space_mask", "off", described(
-            "VGN's mask on the candidates (within 2 dilations of observed free space, none inside): 'off' (the "
-            "paper's selection), 'tcp' (at the candidate voxel, the pinch point), or 'finger_base' (where VGN's "
-            "TCP would sit, 5 cm behind the finger tips on the candidate's approach)"))
         threads = p("torch_threads", 1, int_range(
             "Intra-op threads of the network. 1 by default: on a small CPU shared with the tsdf "
             "node, OpenMP threads waiting on a busy core made detection up to 10x slower", 1, 64,
@@ -155,15 +130,11 @@ class DetectNode(Node):
         except ValueError as e:
             raise ModelFileError(f"precision parameter: {e}") from None
         self.model_name = os.path.basename(self.model_path)
-        self.score_model, ranked_by = None, self.metadata
-        if score_model_path:
-            self.score_model, ranked_by = model_file.load_score_model(resolve_model_path(score_model_path),
-                                                                      self.metadata)
         # A binary model (trained with --target binary) is ranked by its validness, a
         # success probability; its score head is untrained, so its grasps carry
         # gravity_rejection_score NaN (no newtons), never a probability in its place.
-        self.rank_by = model_file.ranking(ranked_by, ranking)  # ModelFileError -> main
-        self.has_score = model_file.has_score(ranked_by)
+        self.rank_by = model_file.ranking(self.metadata)
+        self.has_score = model_file.has_score(self.metadata)
         self.problems = ProblemLog(self.get_logger().error, self.get_logger().info)
         self.grasps_pub = self.create_publisher(GraspArray, "grasps", 10)
         self.markers_pub = self.create_publisher(MarkerArray, "grasp_markers", 10)
@@ -178,8 +149,7 @@ class DetectNode(Node):
         self._last_latency_log = -float("inf")
         self._worker = threading.Thread(target=self._run, name="detect", daemon=True)
         self._worker.start()
-        for line in startup_lines(self.model_path, self.metadata, self.precision, threads, self.rank_by,
-                                  score_model_path or None):
+        for line in startup_lines(self.model_path, self.metadata, self.precision, threads):
             self.get_logger().info(line)
 
     def _on_volume(self, msg):
@@ -216,12 +186,8 @@ class DetectNode(Node):
             precision=self.precision,
             rank_by=self.rank_by,
             has_score=self.has_score,
-            clear_hand=param("clear_hand"),
-            free_space_mask=param("free_space_mask"),
-            pregrasp_distance_m=param("pregrasp_distance_m"),
         )
-        grasps = detection.detect_grasps(self.model, grid, msg.voxel_size_m, T_task_grid, options,
-                                         score_model=self.score_model)
+        grasps = detection.detect_grasps(self.model, grid, msg.voxel_size_m, T_task_grid, options)
         self.problems.clear()
         latency_s = time.monotonic() - received
         out = GraspArray(header=msg.header, model_name=self.model_name)

@@ -95,9 +95,6 @@ def main(argv=None):
     parser.add_argument("--max-grasps", type=int, default=20)
     parser.add_argument("--validness-threshold", type=float, default=0.5,
                         help="an untrained net predicts ~0.497 everywhere: 0.49 lets it return grasps")
-    parser.add_argument("--free-space-mask", default="off", choices=detection.FREE_SPACE_MASKS,
-                        help="VGN's mask on the candidates (DetectionOptions.free_space_mask; 'finger_base' "
-                             "computes every candidate's rotation)")
     parser.add_argument("--threads", type=int, default=1,
                         help="torch intra-op threads (the detect node's torch_threads default is 1)")
     args = parser.parse_args(argv)
@@ -124,15 +121,14 @@ def main(argv=None):
           f"bf16 native {detection.bf16_available()}, AMX {detection.bf16_faster()}, load average {os.getloadavg()[0]:.2f}")
     print(f"versions=python {platform.python_version()}, torch {torch.__version__}, open3d {open3d.__version__}")
     print(f"model={model_note}; validness threshold {args.validness_threshold}; "
-          f"ranked by {ranking.get('rank_by', 'score')}; free-space mask {args.free_space_mask}")
+          f"ranked by {ranking.get('rank_by', 'score')}")
     print(f"volumes={len(grids)} from {args.bag}")
 
     results = {}
     for precision in ("fp32", "bf16") if detection.bf16_available() else ("fp32",):
         cycle = iter(range(10**9))
         options = detection.DetectionOptions(validness_threshold=args.validness_threshold,
-                                             max_grasps=args.max_grasps, precision=precision,
-                                             free_space_mask=args.free_space_mask, **ranking)
+                                             max_grasps=args.max_grasps, precision=precision, **ranking)
 
         def detect():
             grid = grids[next(cycle) % len(grids)]

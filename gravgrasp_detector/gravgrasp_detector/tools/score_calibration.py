@@ -7,8 +7,8 @@ simulated score, the y = x line; then the validness reliability diagram) and
 DIR/calibration.json, and prints per mode the number of labels, the MAE [N] and
 Spearman's rank correlation, then validness precision / recall at the deployed threshold
 and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
-of a scene land under each ranking the model allows (`model_file.ranking`: score,
-expected_score and validness for a score model, and told_<m>kg: by validness among the
+of a scene land under each ranking (score, expected_score = validness x score and
+validness for a score model, and told_<m>kg: by validness among the
 grasps scored >= 1.5 x m g, a detector told the payload m): on a labelled voxel (a grasp there held), on an explicit
 negative (a simulated failure or a colliding pose there), or on neither, and how many top-1
 picks landed on a label whose simulated f_g holds 0.1 / 0.5 / 1.5 / 2.5 / 4 kg (f_g >= m g:
@@ -35,7 +35,8 @@ from scipy.stats import spearmanr
 
 from ..atomic_files import save_figure, save_json
 from ..perception import model_file
-from ..perception.detection import DetectionOptions, detect_grasps, near_surface_mask, payload_min_score_n
+from ..perception.detection import (DetectionOptions, detect_grasps, near_surface_mask, network_outputs,
+                                   payload_min_score_n, rotations_at, select_grasps)
 from ..training.config import TrainConfig
 from ..training.losses import auroc
 from ..training.scenes import G_MPS2, DataError, load_scene, split_scenes
@@ -109,13 +110,25 @@ def told_mass_kg(ranking):
 
 
 def pick_options(ranking, has_score, validness_threshold):
-    """detect's options for a top_picks ranking: detect's own (score, expected_score,
-    validness), or told_<m>kg: by validness among the grasps scored >= 1.5 x m g (the
-    benchmark's ours_mass, a cell's stack.object_mass_kg)."""
+    """detect's options for a top_picks ranking: score or validness (detect's own),
+    expected_score (ranked by the score's rules, keyed by validness x score: pick_grasps),
+    or told_<m>kg: by validness among the grasps scored >= 1.5 x m g (the benchmark's
+    ours_mass, a cell's stack.object_mass_kg)."""
     mass_kg = told_mass_kg(ranking)
+    rank_by = "score" if ranking == "expected_score" else ranking if mass_kg is None else "validness"
     return DetectionOptions(max_grasps=max(TOP_K), has_score=has_score, validness_threshold=validness_threshold,
-                            rank_by=ranking if mass_kg is None else "validness",
-                            min_score_n=0.0 if mass_kg is None else payload_min_score_n(mass_kg))
+                            rank_by=rank_by, min_score_n=0.0 if mass_kg is None else payload_min_score_n(mass_kg))
+
+
+def pick_grasps(model, grid, voxel_size_m, ranking, options):
+    """detect's grasps of `grid` under a top_picks ranking (expected_score: validness x
+    score ranks the candidates the score's rules keep)."""
+    if ranking != "expected_score":
+        return detect_grasps(model, grid, voxel_size_m, options=options)
+    grid = torch.as_tensor(np.asarray(grid, dtype=np.float32))
+    half, score_n, validness = network_outputs(model, grid, options.precision)
+    return select_grasps(grid, score_n, validness, rotations_at(model, half), model.rotation_representation,
+                         voxel_size_m, options=options, rank_key=score_n * validness)
 
 
 @torch.inference_mode()
@@ -136,8 +149,7 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
         scene = load_scene(path)
         negatives = {tuple(v) for v in scene["negative_index"].tolist()}
         for r in rankings:
-            grasps = detect_grasps(model, scene["tsdf"], voxel_size_m,
-                                   options=pick_options(r, has_score, validness_threshold))
+            grasps = pick_grasps(model, scene["tsdf"], voxel_size_m, r, pick_options(r, has_score, validness_threshold))
             for k in TOP_K:
                 for g in grasps[:k]:
                     f_g = label_score_at(scene, g)

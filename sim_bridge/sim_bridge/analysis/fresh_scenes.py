@@ -2,7 +2,7 @@
 added to the ones its lever was chosen on (issue 42: the 32-scene runs hold the 16 tuning
 scenes, whose figures a choice has seen, and 16 new ones, whose figures it has not):
 
-    python -m sim_bridge.benchmark.fresh_scenes RUN --after 16 [--methods ours_sure] [--reference ours]
+    python -m sim_bridge.analysis.fresh_scenes RUN --after 16 [--methods ours_sure] [--reference ours]
 
 Reads the run's attempts.json (run its --report first). The scenes left out are the first
 `--after` of the benchmark's order (packed_000, pile_000, packed_001, ...; 0: every scene).
@@ -18,9 +18,9 @@ import json
 import pathlib
 import sys
 
-from .paired import compare_paired
-from .protocol import scene_ids, weight_key
-from .report import summarize
+from ..benchmark.paired import compare_paired
+from ..benchmark.protocol import scene_ids, weight_key
+from ..benchmark.report import summarize
 from .run_vs_run import load_rounds
 
 

@@ -1,6 +1,6 @@
 """Issue 42's levers side by side, printed from committed results so it cannot be typed wrong.
 
-`python -m sim_bridge.benchmark.lever_table` reads, for each lever, the benchmark run that
+`python -m sim_bridge.analysis.lever_table` reads, for each lever, the benchmark run that
 measured it on each tuning set (`comparisons.json` and `attempts.json`, which `benchmark
 --report` writes) and prints one Markdown table: the method's SR − Binary's per scene,
 paired (benchmark/paired.py), at 0.1 and 1.5 kg with its p value; its attempts lost before
@@ -25,9 +25,9 @@ import re
 import sys
 from pathlib import Path
 
+from ..benchmark.paired import compare_paired
+from ..benchmark.report import AFTER_LIFT, before_lift_losses, summarize
 from .fresh_scenes import fresh_rounds
-from .paired import compare_paired
-from .report import AFTER_LIFT, before_lift_losses, summarize
 from .run_vs_run import load_rounds
 
 HELDOUT, PROCEDURAL = "held-out meshes", "procedural seed 1000"
@@ -36,16 +36,16 @@ HELDOUT, PROCEDURAL = "held-out meshes", "procedural seed 1000"
 LEVERS = (
     ("none (the shipped Ours)", "—", "—", "ours",
      {HELDOUT: "heldout_v4_sure", PROCEDURAL: "procedural_v4_sure"}),
-    ("rank by validness × score", "selection", "detect `ranking:=expected_score`", "ours_expected",
+    ("rank by validness × score", "selection", "rank key validness × score (`detection_levers.expected_score`)", "ours_expected",
      {HELDOUT: "heldout_v4", PROCEDURAL: "procedural_v4"}),
     ("validness floor 0.9", "selection", "detect `validness_threshold:=0.9`", "ours_sure",
      {HELDOUT: "heldout_v4_sure", PROCEDURAL: "procedural_v4_sure"}),
     ("precision labels only, validness floor 0.9", "training + selection",
      "`train --data-subset precision-only`, detect `validness_threshold:=0.9`", "ours_precision_sure",
      {HELDOUT: "heldout_v4_precision_sure", PROCEDURAL: "procedural_v4_precision_sure"}),
-    ("told the mass: surest grasp scored ≥ 1.5 × weight", "selection", "detect `ranking:=validness`, `min_score_n:=` 1.5 m g",
+    ("told the mass: surest grasp scored ≥ 1.5 × weight", "selection", "by validness among grasps of `min_score_n` ≥ 1.5 m g (`detection_levers`)",
      "ours_mass", {HELDOUT: "heldout_v4_mass"}),
-    ("told the mass: calibrated need preferred", "selection", "`DetectionOptions.prefer_score_n` (no node parameter)", "ours_told",
+    ("told the mass: calibrated need preferred", "selection", "rank key `detection_levers.preferring`", "ours_told",
      {HELDOUT: "heldout_v4_told"}),
     ("precision labels only", "training", "`train --data-subset precision-only`", "ours_precision",
      {HELDOUT: "heldout_v4", PROCEDURAL: "baselines_procedural"}),
@@ -55,7 +55,7 @@ LEVERS = (
      {HELDOUT: "heldout_v4_guarded_approach"}),  # procedural half not run: no effect held-out (levers.md)
     # screened on the decisive runs' 32 scenes (decisive_chain.sh SCREEN), not on 16
     ("Binary places, Ours ranks: Binary's grasps of validness ≥ 0.9 by Ours' score", "selection",
-     "detect `model_path:=gravgrasp_binary.pt score_model_path:=gravgrasp.pt validness_threshold:=0.9`",
+     "Binary's model, Ours' score as rank key, validness ≥ 0.9 (`detection_levers`)",
      "binary_scored",
      {HELDOUT: "heldout_v4_decisive", PROCEDURAL: "procedural_v4_decisive"}),
 )

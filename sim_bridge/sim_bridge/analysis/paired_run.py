@@ -1,5 +1,5 @@
 """A benchmark run that pairs new methods with committed rounds, so that only the new
-methods cost CPU: `python -m sim_bridge.benchmark.paired_run --source RUN --out DIR
+methods cost CPU: `python -m sim_bridge.analysis.paired_run --source RUN --out DIR
 --methods ours,binary` copies into DIR what the benchmark needs to resume RUN there:
 its config.json, excluded_objects.json and scenes/, and the rounds (and any rounds Drake
 could not simulate, failed_rounds.json) of the named methods. The benchmark, run into
@@ -23,9 +23,9 @@ import sys
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
-from . import failed_rounds
-from .methods import MethodFileMissing, method_named
-from .protocol import execution_of
+from ..benchmark import failed_rounds
+from ..benchmark.methods import MethodFileMissing, method_named
+from ..benchmark.protocol import execution_of
 
 RUN_FILES = ("config.json", "excluded_objects.json")
 ADDED_BY_A_RUN = ("hands", "machines")  # config.json keys the benchmark writes as methods join

@@ -15,7 +15,7 @@ The geometry behind studies.before_lift_diagnosis (issue 42): no physics, no ROS
   Panda's finger base, its finger tips 5 cm ahead; the 2F-85's TCP is the pinch point
   between the pads, at an object's middle. So `diagnose_pick` tests the mask twice: at the
   TCP (the mask applied to this network's voxels as they are) and at the point where VGN's
-  TCP would sit on the same approach (detection's `FINGER_BASE_Z_M`, 5 cm behind the finger tips).
+  TCP would sit on the same approach (vgn's `FINGER_BASE_Z_M`, 5 cm behind the finger tips).
 - `first_contact`: the open hand's boxes (perception.hand_clearance.HandGeometry, the
   executor's model of the hand) moved from the pre-grasp along the approach to the grasp
   pose against the true objects (surface samples) and the table plane: the approach
@@ -34,8 +34,10 @@ import dataclasses
 import numpy as np
 import trimesh
 
-from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP, FINGER_BASE_Z_M, free_space_band
+from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP
 from gravgrasp_detector.perception.tsdf import to_network_grid
+
+from ..benchmark.methods.vgn import FINGER_BASE_Z_M, free_space_band
 
 SURFACE_CLASSES = ("inside", "band", "free", "unobserved")
 BAND_LIMIT = 0.98  # |d| / truncation at which the grid drops a voxel (tsdf.to_network_grid)

@@ -1,4 +1,4 @@
-"""Why did that attempt fail? `ros2 run sim_bridge replay_round --results DIR --method M
+"""Why did that attempt fail? `python -m sim_bridge.analysis.replay --results DIR --method M
 --weight KG --scene ID` runs one recorded benchmark round again and prints, per attempt,
 what lay in the open hand's closing region (between the pads, palm face to finger tips;
 detection.CLOSING_REGION_TCP) at the grasp it executed:
@@ -33,10 +33,10 @@ import trimesh
 from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP, surface_voxel_centres
 from gravgrasp_detector.perception.model_file import file_sha256
 
-from .clearing import clear_table
-from .methods import METHODS
-from .protocol import Protocol, weight_key
-from .rounds import RoundTask, make_cell
+from ..benchmark.clearing import clear_table
+from ..benchmark.methods import METHODS
+from ..benchmark.protocol import Protocol, weight_key
+from ..benchmark.rounds import RoundTask, make_cell
 
 MESH_SAMPLES = 4000
 

@@ -2,7 +2,7 @@
 e.g. one Drake could not simulate, run from its scene), its CPU and simulated time split
 by phase (each phase's own, without the phases inside it).
 
-    python -m sim_bridge.benchmark.round_profile --results sim_bridge/results/heldout_v4_a47ba91 \\
+    python -m sim_bridge.analysis.round_profile --results sim_bridge/results/heldout_v4_a47ba91 \\
         --method binary --weight 1.5 --scene packed_001 [--execution fast] [--cprofile 20]
 
 Phases: the scene's build and first settle, the settle at the round's weight, the view
@@ -25,10 +25,10 @@ import time
 
 import torch
 
-from .clearing import clear_table
-from .methods import method_named
-from .protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
-from .rounds import RoundTask, make_cell
+from ..benchmark.clearing import clear_table
+from ..benchmark.methods import method_named
+from ..benchmark.protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
+from ..benchmark.rounds import RoundTask, make_cell
 
 
 class PhaseClock:

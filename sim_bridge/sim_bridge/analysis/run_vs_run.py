@@ -3,7 +3,7 @@ what a run-wide setting changes (an execution lever such as the guarded approach
 Ours and Binary both run under, so a run's own report cannot show it). Reads each run's
 attempts.json (what its `--report` counted: the current model files' rounds only):
 
-    python -m sim_bridge.benchmark.run_vs_run BASE LEVER [--methods ours,binary]
+    python -m sim_bridge.analysis.run_vs_run BASE LEVER [--methods ours,binary]
 
 Per method and weight both ran: SR in each, the mean per-scene SR difference (LEVER −
 BASE) with its paired bootstrap interval and sign-flip p (benchmark/paired.py), and the
@@ -18,9 +18,9 @@ import json
 import pathlib
 import sys
 
-from .paired import compare_paired
-from .protocol import weight_key
-from .report import before_lift_losses
+from ..benchmark.paired import compare_paired
+from ..benchmark.protocol import weight_key
+from ..benchmark.report import before_lift_losses
 
 
 def load_rounds(run_dir) -> list:

@@ -22,7 +22,7 @@ from ..world import WorldSettings
 from . import failed_rounds
 from .clearing import clear_table
 from .machine import machine_name
-from .methods import MethodFileMissing, method_named, method_of
+from .methods import PROVIDERS, MethodFileMissing, method_named, method_of
 from .protocol import (ABLATION_METHODS, LEGACY_EXECUTION, MAX_POOLS, OBJECTS_PER_SCENE, PROCEDURAL_SEED,
                        SCHEMA_VERSION, Protocol, execution_name, execution_of,
                        SceneDrawTask, make_scene, object_pool, scene_ids, weight_key)
@@ -41,12 +41,13 @@ class RoundTask:
     scene: dict
     protocol: Protocol
     baselines_dir: str = ""  # the Panda hand's files ("": physics.baseline_files' default)
+    provider: str = ""  # the module that registers a study's method (methods.PROVIDERS), "" for the registry's
 
 
 def make_cell(task: RoundTask) -> tuple:
     """(SimCell of the round's scene and weight with its method's detector and hand,
     the methods.Detector)."""
-    method = method_of(task.method, task.model_path)
+    method = method_of(task.method, task.model_path, task.provider)
     told = {"payload_kg": task.mass_kg} if method.told_payload else {}
     detector = method.make(task.model_path, task.protocol, **told)
     cell = SimCell(task.scene, task.mass_kg, task.protocol, detector.volume, detector.detect, method.hand,
@@ -240,7 +241,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
                 if pending:
                     run_tasks(ex, make_scene, pending, on_scene, desc="scenes", progress=progress)
                 # Scene-major order: a run cut short has every method on the same scenes.
-                tasks = [RoundTask(m, path, shas[m], w, scenes[sid], protocol, baselines_dir or "")
+                tasks = [RoundTask(m, path, shas[m], w, scenes[sid], protocol, baselines_dir or "", PROVIDERS.get(m, ""))
                          for sid in ids for w in sorted({w for ws in plan.values() for w in ws})
                          for m, path in methods.items() if w in plan[m] and not done(m, w, sid)]
                 errors.clear()

@@ -4,7 +4,7 @@ Every before-the-lift failure of the chosen methods in committed benchmark round
 (`FAILURES`: report.outcome_class's no_object, timeout (the fingers never stopped
 closing), jammed_on_approach, lift_blocked, and a round that ended with every detected
 grasp refused by the executor, `all_refused`) is replayed to the view it was picked in
-and diagnosed there (benchmark.pick_diagnosis): where the pick's TCP sat against the
+and diagnosed there (analysis.pick_diagnosis): where the pick's TCP sat against the
 observed surface (inside / band / free / unobserved), whether VGN's mask keeps it, how
 far the open hand's approach gets before it meets a true object or the table, its
 validness, score and mode, and what the comparison methods (`COMPARE`: Binary for Ours,
@@ -40,16 +40,17 @@ import time
 import numpy as np
 
 from gravgrasp_detector import atomic_files
-from gravgrasp_detector.perception.detection import FINGER_BASE_Z_M
 
-from ..benchmark import pick_diagnosis
-from ..benchmark.clutter_benchmark import parse_weights
+from ..analysis import pick_diagnosis
+from ..analysis.replay import SurfaceSamples, closing_region_contents, rebuild_cell, recorded_round
 from ..benchmark.clearing import clear_table
+from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.methods import METHODS
+from ..benchmark.methods.vgn import FINGER_BASE_Z_M
 from ..benchmark.protocol import weight_key
-from ..benchmark.replay import SurfaceSamples, closing_region_contents, rebuild_cell, recorded_round
 from ..benchmark.report import attempt_scores, outcome_class
 from ..physics.scenes import TABLE_HEIGHT_M
+from . import detection_levers  # noqa: F401  (registers the lever methods: rounds name them)
 
 FAILURES = ("no_object", "timeout", "jammed_on_approach", "lift_blocked", "all_refused")
 # whom each method's picks are compared with in the same view

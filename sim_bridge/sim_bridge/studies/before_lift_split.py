@@ -27,8 +27,8 @@ import sys
 
 import numpy as np
 
+from ..analysis.run_vs_run import load_rounds
 from ..benchmark.report import ATTEMPT_LOSSES, outcome_class
-from ..benchmark.run_vs_run import load_rounds
 
 BANDS = (0.9, 0.95, 0.97, 0.99)
 SAME_PLACE_M = 0.01  # a repeat: the TCP within this of the attempt before it

@@ -15,7 +15,7 @@ it, what placement itself depends on: the fraction of all attempts placed per va
 
 The picks are those the methods chose (mostly high scores), so the fit describes the range
 they cover, not the whole score head. A round copied into several result directories by
-`benchmark.paired_run` counts once. Tune only on tuning rounds (the held-out meshes listed in
+`analysis.paired_run` counts once. Tune only on tuning rounds (the held-out meshes listed in
 models/vgn_heldout_meshes.txt, procedural seed 1000).
 
     python -m sim_bridge.studies.executed_score_calibration --model models/gravgrasp.pt \

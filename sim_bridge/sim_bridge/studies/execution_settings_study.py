@@ -47,6 +47,7 @@ from ..benchmark.methods import method_named
 from ..benchmark.protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
 from ..benchmark.rounds import RoundTask, make_cell
 from ..parallel import make_executor, run_tasks
+from . import detection_levers  # noqa: F401  (registers the lever methods: rounds name them)
 
 # The committed rounds the study replays: (results dir, method, weight kg, scenes). The
 # held-out tuning meshes (models/vgn_heldout_meshes.txt), both methods, both ends of the

@@ -6,12 +6,12 @@ A round's first view needs no replay of attempts: the scene settles and the dete
 it once. So, cheaply (seconds a round), each round's first view is rebuilt from its
 committed scene, protocol and model file (sha256 checked), and its recorded first pick
 (attempt 1: the grasp at its recorded rank, trusted only when the replayed pose equals the
-recorded one to 2e-6) is diagnosed as before_lift_diagnosis does (benchmark.pick_diagnosis:
+recorded one to 2e-6) is diagnosed as before_lift_diagnosis does (analysis.pick_diagnosis:
 where its TCP sat, whether VGN's mask keeps it at the TCP and where VGN's TCP would sit,
 what its approach meets), beside the first feasible pick of each `--compare` selection in
 the same view: the same pick or another, where it sits, whether its approach meets a true
 object or the table before the grasp pose. A selection is one of VGN's masks
-(`FREE_SPACE_MASKS` but "off", on the round's own model: the default) or a method of the
+(detection_levers.VGN_MASKS, on the round's own model: the default) or a method of the
 project's models (`binary_scored`, `ours`, ...: its own model file).
 
 The first pick is all it sees: a failure later in a round happened in a view this does
@@ -43,17 +43,17 @@ import time
 import numpy as np
 
 from gravgrasp_detector import atomic_files
-from gravgrasp_detector.perception.detection import FREE_SPACE_MASKS
 
-from ..benchmark import pick_diagnosis
+from ..analysis import pick_diagnosis
+from ..analysis.replay import SurfaceSamples, rebuild_cell, recorded_round
 from ..benchmark.clutter_benchmark import parse_weights
-from ..benchmark.methods import METHODS, gravgrasp
+from ..benchmark.methods import METHODS
 from ..benchmark.protocol import weight_key
-from ..benchmark.replay import SurfaceSamples, rebuild_cell, recorded_round
 from ..benchmark.report import outcome_class
 from .before_lift_diagnosis import FAILURES, diagnose_view, round_files
+from .detection_levers import VGN_MASKS, lever_detector
 
-MASKS = tuple(m for m in FREE_SPACE_MASKS if m != "off")
+MASKS = tuple(VGN_MASKS)
 
 
 def selections(names, model_path, protocol) -> dict:
@@ -62,7 +62,7 @@ def selections(names, model_path, protocol) -> dict:
     out = {}
     for name in names:
         if name in MASKS:
-            out[name] = gravgrasp.make_detector(model_path, protocol, free_space_mask=name).detect
+            out[name] = lever_detector(model_path, protocol, restrict=VGN_MASKS[name]).detect
         else:
             out[name] = METHODS[name].make(METHODS[name].default_path(), protocol).detect
     return out

@@ -1,4 +1,4 @@
-"""Cheaper label settings that rank grasps the same: `ros2 run sim_bridge label_settings_study`.
+"""Cheaper label settings that rank grasps the same: `python -m sim_bridge.studies.label_settings_study`.
 
 The reference is a fixed sample of held grasps from committed grasp tables,
 re-simulated here at the tables' own label settings (dt 1 ms, 400 N/s, 200 N

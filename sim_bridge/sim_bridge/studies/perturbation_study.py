@@ -1,4 +1,4 @@
-"""How far from a held grasp does it stop holding? `ros2 run sim_bridge perturbation_study`.
+"""How far from a held grasp does it stop holding? `python -m sim_bridge.studies.perturbation_study`.
 
 The tables' candidates are antipodal pairs with a small lateral jitter, and ~88 % of them
 hold, so the network sees few failed poses near a held one and its validness stays high

@@ -49,6 +49,7 @@ from ..benchmark.protocol import Protocol, weight_key
 from ..benchmark.report import outcome_class
 from ..benchmark.rounds import RoundTask, make_cell
 from ..parallel import make_executor, run_tasks
+from . import detection_levers  # noqa: F401  (registers the lever methods: rounds name them)
 
 COLLISION = "the open hand collides"  # hand_clearance.first_collision's refusals start so
 # voxel counts of a refused hand, binned for the summary: a hand grazing a surface's

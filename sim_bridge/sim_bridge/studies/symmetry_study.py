@@ -1,4 +1,4 @@
-"""Do symmetric copies of a grasp hold alike? `ros2 run sim_bridge symmetry_study`.
+"""Do symmetric copies of a grasp hold alike? `python -m sim_bridge.studies.symmetry_study`.
 
 The scene stage places every simulated grasp of a symmetric object at each of its
 symmetries too (object_symmetry), without simulating them.  This study checks

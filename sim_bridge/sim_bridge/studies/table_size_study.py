@@ -1,4 +1,4 @@
-"""How many labels per scene do more candidates per object buy? `ros2 run sim_bridge table_size_study`.
+"""How many labels per scene do more candidates per object buy? `python -m sim_bridge.studies.table_size_study`.
 
 Labels are voxels (one per voxel: the best grasp there), so more simulated candidates
 per object add labels only where they land in voxels no other grasp holds yet. This

@@ -36,10 +36,10 @@ from scipy.spatial.transform import Rotation
 
 from gravgrasp_detector.perception.model_file import file_sha256
 
-from ..benchmark import pick_diagnosis
+from ..analysis import pick_diagnosis
+from ..analysis.replay import SurfaceSamples
 from ..benchmark.methods import METHODS, vgn
 from ..benchmark.protocol import Protocol, weight_key
-from ..benchmark.replay import SurfaceSamples
 from ..benchmark.rounds import RoundTask, make_cell
 from ..physics import panda_hand
 from ..physics.depth_rendering import render_depth

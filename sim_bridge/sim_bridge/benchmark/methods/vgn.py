@@ -46,8 +46,10 @@ from scipy.spatial.transform import Rotation
 from torch import nn
 
 from gravgrasp_detector.perception import hand_clearance
-from gravgrasp_detector.perception.detection import DetectionOptions, Grasp, free_space_band
+from gravgrasp_detector.execution.executor import ExecutionLimits
+from gravgrasp_detector.perception.detection import Grasp
 from gravgrasp_detector.perception.tsdf import TSDFVolume
+from robotiq_driver.hand_geometry import FINGER_TIP_Z_M
 
 from ...physics.baseline_files import SOURCES, BaselineFileMissing, baseline_file
 from ..sim_cell import HAND_GEOMETRY
@@ -213,6 +215,31 @@ def predict(net: VGNNet, grid) -> tuple:
     return quality[0, 0].numpy(), quaternions[0].numpy(), width[0, 0].numpy()
 
 
+FREE_SPACE_DILATIONS = 2  # VGN's detection.py
+# Where VGN's TCP (the Panda's finger base, VGN's finger depth of 5 cm behind the finger
+# tips) would sit on a 2F-85 grasp: along its approach, in the 2F-85's TCP frame
+FINGER_BASE_Z_M = FINGER_TIP_Z_M - 0.05
+
+
+def free_space_band(grid):
+    """(R, R, R) bool tensor: VGN's mask (its detection.py's `process`) on a grid in tsdf.py's
+    convention, numpy or torch: observed free space (grid > 0.5), grown by FREE_SPACE_DILATIONS
+    six-connected steps that never enter observed inside (1e-3 < grid < 0.5). scipy's
+    binary_dilation(grid > 0.5, iterations=2, mask=~inside), as VGN calls it."""
+    grid = torch.as_tensor(grid)
+    may_grow = ~((grid > 1e-3) & (grid < 0.5))
+    kept = grid > 0.5
+    for _ in range(FREE_SPACE_DILATIONS):
+        grown = kept.clone()
+        for dim in range(3):
+            n = kept.shape[dim]
+            ahead, behind = grown.narrow(dim, 1, n - 1), grown.narrow(dim, 0, n - 1)
+            ahead |= kept.narrow(dim, 0, n - 1)
+            behind |= kept.narrow(dim, 1, n - 1)
+        kept = kept | (grown & may_grow)
+    return kept
+
+
 def mask_quality(grid, quality, width_voxels, options: VGNOptions = VGNOptions()):
     """Smoothed quality, 0 away from observed free space, inside objects and at widths
     out of range (detection.py's `process`)."""
@@ -261,7 +288,7 @@ def make_vgn_detector(net: VGNNet, options: VGNOptions = VGNOptions()):
 def make_detector(path, protocol, hand: str = "panda", to_hand=None) -> Detector:
     """VGN with the weights at `path` as the benchmark's Detector, under the protocol's
     max_grasps and, when on, its clear_hand (the open hand swept from the pre-grasp, as
-    detection's step 6 does for the 2F-85). The protocol's validness_threshold and
+    hand_clearing.py does for the 2F-85). The protocol's validness_threshold and
     min_score_n are the project's detection's: VGN keeps its own 0.90 quality threshold.
     Its quality is a success probability: target "binary". Another hand executing VGN's
     grasps (vgn_2f85): `hand` names it and `to_hand` moves each VGNGrasp into its TCP
@@ -283,6 +310,6 @@ def make_detector(path, protocol, hand: str = "panda", to_hand=None) -> Detector
         grid, voxel_size_m, origin = tsdf
         points = hand_clearance.occupied_points(np.asarray(grid), voxel_size_m, vgn_input(tsdf)[1][:3, 3])
         hit = hand_clearance.hands_collide(np.array([g.pose for g in grasps]), points, voxel_size_m,
-                                           DetectionOptions.pregrasp_distance_m, geometry)
+                                           ExecutionLimits.pregrasp_distance_m, geometry)
         return [g for g, h in zip(grasps, hit) if not h][:protocol.max_grasps]
     return Detector(detect, vgn_volume(), "binary")

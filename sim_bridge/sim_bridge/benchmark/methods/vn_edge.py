@@ -28,7 +28,8 @@ import torch
 import torch.nn.functional as F
 
 from gravgrasp_detector.perception import hand_clearance
-from gravgrasp_detector.perception.detection import DetectionOptions, Grasp
+from gravgrasp_detector.execution.executor import ExecutionLimits
+from gravgrasp_detector.perception.detection import Grasp
 
 from ...physics.panda_hand import HAND_TO_TCP_M
 from ...physics.scenes import TABLE_HEIGHT_M
@@ -256,7 +257,7 @@ def clearing_grasps(grasps, tsdf, max_grasps: int) -> list:
     for start in range(0, len(grasps), 64):
         batch = grasps[start:start + 64]
         hit = hand_clearance.hands_collide(np.array([g.pose for g in batch]), points, voxel_size_m,
-                                           DetectionOptions.pregrasp_distance_m, HAND_GEOMETRY["panda"])
+                                           ExecutionLimits.pregrasp_distance_m, HAND_GEOMETRY["panda"])
         cleared += [g for g, h in zip(batch, hit) if not h]
         if len(cleared) >= max_grasps:
             break
