@@ -23,6 +23,11 @@ from ros_testing import call_spun as call
 from ros_testing import wait_until
 
 
+# The 2F-85's TCP at task (0.15, 0.15, 0.30), pointing down, for the node's default base
+# (0.15, -0.45, 0): inside the protective box, which holds the hand at the start of a motion too.
+START_IN_BASE = (0.0, 0.6, 0.3, math.pi, 0.0, 0.0)
+
+
 def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
     request = MoveToPose.Request(speed_mps=float(speed), check_only=check_only)
     request.target.header.frame_id = frame
@@ -35,7 +40,7 @@ def move_request(x, y, z, speed=0.1, frame="task", check_only=False):
 @pytest.fixture
 def served(ros_node):
     """URArmNode with the stand-in controller, spun with the test's client node."""
-    ur = FakeURController()
+    ur = FakeURController(tcp_pose=START_IN_BASE)
     ur.time_scale = 0.3
     arm_node = URArmNode(connect=ur.connect, parameter_overrides=[
         Parameter("call_timeout_s", value=2.0), Parameter("motion_timeout_margin_s", value=2.0),

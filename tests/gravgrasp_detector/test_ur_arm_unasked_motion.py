@@ -213,3 +213,38 @@ def test_a_kick_goes_ahead_of_calls_waiting_for_the_rtde_thread():
         future.result(2.0)
     calls.close()
     assert order == ["kick", "call 0", "call 1", "call 2"], order
+
+
+# -- path 6: the protective box holds the hand, along the whole line ------------------------
+
+def _tilted(x, y, z, deg):
+    """TCP at (x, y, z), approach tilted `deg` about the task x axis from straight down."""
+    from scipy.spatial.transform import Rotation
+    return tcp(x, y, z, Rotation.from_euler("x", 180 + deg, degrees=True).as_matrix())
+
+
+def test_the_box_holds_the_flange_and_the_fingers_not_only_the_tcp():
+    arm, ur = make_arm()  # box [-0.1, -0.1, 0]..[0.4, 0.4, 0.8]
+    high = arm.move(tcp(0.15, 0.15, 0.70), 0.5)  # the TCP inside, the flange at 0.856 m
+    assert not high.reachable and "its flange at (0.150, 0.150, 0.856) m is 56 mm outside along z" in high.message, \
+        high.message
+    edge = arm.move(tcp(0.39, 0.15, 0.30), 0.5)  # the TCP 10 mm inside; the hand is 156 mm wide across x
+    assert not edge.reachable and "housing corner at (0.427" in edge.message and "along x" in edge.message, edge.message
+    assert ur.calls == [], "refused before connecting"
+
+
+def test_the_box_holds_the_hand_along_the_straight_line_and_at_the_start():
+    arm, ur = make_arm()
+    arm.connect()
+    ur.tcp_pose = arm.to_base(_tilted(0.15, 0.15, 0.67, -60))  # the hand's top at 0.785 m: inside
+    target = _tilted(0.15, 0.15, 0.67, 60)  # inside too, but halfway the hand points down: flange at 0.826 m
+    assert arm._box_refusal(target) is None
+    result = arm.move(target, 0.2)
+    print(f"\n{result.message}")
+    assert not result.reachable and "% along the path: its" in result.message, result.message  # the first pose out
+    assert "outside along z" in result.message
+    ur.tcp_pose = arm.to_base(tcp(0.15, 0.15, 0.70))  # parked with the flange above the box
+    parked = arm.move(tcp(0.15, 0.15, 0.30), 0.2)
+    assert not parked.reachable and "at the start" in parked.message and "jog the arm into the box" in parked.message, \
+        parked.message
+    assert ur.called("moveL") == []

@@ -9,6 +9,7 @@ Environment (all optional):
                            answered, for the soak's checks
 """
 import json
+import math
 import os
 import pathlib
 import sys
@@ -23,7 +24,9 @@ from gravgrasp_detector.ros.ur_arm_node import URArmNode  # noqa: E402
 
 
 def main():
-    ur = FakeURController()
+    # The TCP starts at task (0.15, 0.15, 0.30), pointing down, for the sample cell's base
+    # (0.15, -0.45, 0): inside its protective box.
+    ur = FakeURController(tcp_pose=(0.0, 0.6, 0.3, math.pi, 0.0, 0.0))
     log_path = os.environ.get("FAKE_UR_LOG")
     log_lock = threading.Lock()
 

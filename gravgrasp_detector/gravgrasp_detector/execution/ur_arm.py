@@ -79,12 +79,15 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import itertools
 import math
 import threading
 import time
 from typing import Callable
 
 import numpy as np
+from robotiq_driver.hand_geometry import HAND_PARTS, OPEN_HAND_BOXES_TCP
+from scipy.spatial.transform import Rotation
 
 from .ur_arm_settings import URArmSettings
 from .ur_controller import (ROBOT_MODES, SAFETY_MODES, SAFETY_MODES_THAT_MOVE, CallThread, matrix_to_ur_pose,
@@ -136,6 +139,17 @@ class URArm:
         self._log = log or (lambda text: None)
         self._clock = clock
         self._X_base_task = np.linalg.inv(np.asarray(self.settings.X_task_base, float))
+        corners, names = [[0.0, 0.0, 0.0]], ["TCP"]
+        corners.append(list(np.linalg.inv(ur_pose_to_matrix(self.settings.tcp_in_flange))[:3, 3]))
+        names.append("flange")
+        for part, (lo, hi) in zip(HAND_PARTS, OPEN_HAND_BOXES_TCP):
+            if part == "wrist":  # the robot's wrist behind the flange, not the hand
+                continue
+            for corner in itertools.product(*zip(lo, hi)):
+                corners.append(list(corner))
+                names.append(f"{part} corner")
+        self._hand_points_tcp = np.asarray(corners, float)
+        self._hand_point_names = names
         self._control = self._receive = self._calls = None
         self._link_lock = threading.Lock()     # connect / drop
         self._motion_lock = threading.Lock()   # a request or a reconnect, one at a time
@@ -418,16 +432,52 @@ class URArm:
     def to_base(self, X_task_tcp) -> list:
         return matrix_to_ur_pose(self._X_base_task @ np.asarray(X_task_tcp, float))
 
-    def _box_refusal(self, X_task_tcp) -> str | None:
-        p = np.asarray(X_task_tcp, float)[:3, 3]
+    def _hand_points(self, X_task_tcp) -> np.ndarray:
+        """(n, 3) task-frame points of the hand at a TCP pose: the TCP, the flange and the
+        corners of the open 2F-85's housing and finger boxes (robotiq_driver.hand_geometry)."""
+        X = np.asarray(X_task_tcp, float)
+        return X[:3, :3] @ self._hand_points_tcp.T + X[:3, 3:4]
+
+    def _box_refusal(self, X_task_tcp, start=None) -> str | None:
+        """Why the hand would leave the protective box at the target, or (given the start
+        TCP pose, task frame) anywhere along the straight line from it; None if it stays in."""
         lo, hi = np.asarray(self.settings.workspace_min_m), np.asarray(self.settings.workspace_max_m)
-        if ((p >= lo) & (p <= hi)).all():
-            return None
-        axis = int(np.argmax(np.maximum(lo - p, p - hi)))
-        by = float(max(lo[axis] - p[axis], p[axis] - hi[axis]))
-        return (f"TCP target ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m lies outside the protective box "
-                f"{np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} (task frame) by {by * 1000:.0f} mm "
-                f"along {'xyz'[axis]}; nothing moved")
+        p = np.asarray(X_task_tcp, float)[:3, 3]
+        if not ((p >= lo) & (p <= hi)).all():
+            axis = int(np.argmax(np.maximum(lo - p, p - hi)))
+            by = float(max(lo[axis] - p[axis], p[axis] - hi[axis]))
+            return (f"TCP target ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m lies outside the protective box "
+                    f"{np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} (task frame) by {by * 1000:.0f} mm "
+                    f"along {'xyz'[axis]}; nothing moved")
+        for where, X in self._path_poses(X_task_tcp, start):
+            points = self._hand_points(X)
+            out = np.maximum(lo[:, None] - points, points - hi[:, None])  # (3, n): > 0 outside
+            if (out > 1e-9).any():
+                axis, i = np.unravel_index(int(np.argmax(out)), out.shape)
+                q = points[:, i]
+                return (f"the hand would leave the protective box {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} "
+                        f"(task frame) {where}: its {self._hand_point_names[i]} at ({q[0]:.3f}, {q[1]:.3f}, {q[2]:.3f}) m "
+                        f"is {out[axis, i] * 1000:.0f} mm outside along {'xyz'[axis]}"
+                        + ("; jog the arm into the box on the teach pendant" if where == "at the start" else "")
+                        + "; nothing moved")
+        return None
+
+    def _path_poses(self, X_target, start):
+        """(words, X_task_tcp) along moveL's straight line: the target, or the start, every
+        10 mm and 5 deg between, and the target (the TCP moves on the line, its
+        orientation turns at a proportional rate)."""
+        if start is None:
+            yield "at the target", X_target
+            return
+        X0, X1 = np.asarray(start, float), np.asarray(X_target, float)
+        turn = Rotation.from_matrix(X0[:3, :3]).inv() * Rotation.from_matrix(X1[:3, :3])
+        steps = int(max(1, np.ceil(np.linalg.norm(X1[:3, 3] - X0[:3, 3]) / 0.01), np.ceil(np.degrees(turn.magnitude()) / 5)))
+        for k in range(steps + 1):
+            f = k / steps
+            X = np.eye(4)
+            X[:3, :3] = (Rotation.from_matrix(X0[:3, :3]) * Rotation.from_rotvec(f * turn.as_rotvec())).as_matrix()
+            X[:3, 3] = X0[:3, 3] + f * (X1[:3, 3] - X0[:3, 3])
+            yield ("at the start" if k == 0 else "at the target" if k == steps else f"{100 * f:.0f} % along the path"), X
 
     def speed_for(self, speed_mps: float) -> tuple[float, str]:
         if not math.isfinite(speed_mps) or speed_mps < 0:
@@ -448,6 +498,10 @@ class URArm:
         if refusal:
             return MoveResult(False, False, f"refused: {refusal}; nothing moved")
         control = self._control
+        X_task_start = np.asarray(self.settings.X_task_base, float) @ ur_pose_to_matrix(self._rpc(receive.getActualTCPPose))
+        refusal = self._box_refusal(X_task_tcp, X_task_start)
+        if refusal:
+            return MoveResult(False, False, f"refused: {refusal}")
         pose = self.to_base(X_task_tcp)
         if not self._rpc(control.isPoseWithinSafetyLimits, pose):
             return MoveResult(False, False, "refused: the controller says the TCP pose "

@@ -18,8 +18,10 @@ FLANGE_TO_TCP_2F85_M = 0.1558  # robotiq_driver.hand_geometry.FLANGE_TO_TCP_M (k
 class URArmSettings:
     X_task_base: np.ndarray = dataclasses.field(default_factory=lambda: np.eye(4))
     tcp_in_flange: tuple = (0.0, 0.0, FLANGE_TO_TCP_2F85_M, 0.0, 0.0, 0.0)  # UR pose, set with setTcp
-    workspace_min_m: tuple = (-0.10, -0.10, 0.0)   # protective TCP box, task frame
-    workspace_max_m: tuple = (0.40, 0.40, 0.60)
+    # Protective box, task frame: the hand (TCP, flange, the open 2F-85's hull) must stay in it
+    # at the start, along moveL's straight line and at the target.
+    workspace_min_m: tuple = (-0.10, -0.10, 0.0)
+    workspace_max_m: tuple = (0.40, 0.40, 0.80)
     default_speed_mps: float = 0.05     # a request's speed 0 means this
     max_speed_mps: float = 0.25         # faster requests are capped to this
     acceleration_mps2: float = 0.5      # moveL tool acceleration
