@@ -226,7 +226,7 @@ def main(argv=None):
     rsc.add_argument("--out", required=True, help="new output directory (gets objects/; resumable)")
     rsc.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
     rsc.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
-                     help="SimSettings for the new tables, over the label settings (dt 1 ms), e.g. drive=self_locking")
+                     help="what changes, over each table's own SimSettings, e.g. drive=self_locking (repeatable)")
     rsc.add_argument("--names", default=None, metavar="FILE", help="only the objects named in FILE")
     rsc.add_argument("--max-held-rows", type=int, default=0,
                      help="a seeded sample of each table's held rows (a gated study; default 0: every row)")
@@ -234,12 +234,11 @@ def main(argv=None):
     rsc.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     rsc.add_argument("--no-progress", action="store_true")
 
-    wr = sub.add_parser("wrap", help="held precision candidates turned and moved toward the palm, closed again: "
-                                     "power grasps made as the paper makes them (rows to objects/toward_palm/)")
+    wr = sub.add_parser("wrap", help="held precision candidates turned and moved toward the palm, closed again with "
+                                     "the table's own settings: power grasps made as the paper makes them (rows to "
+                                     "objects/toward_palm/)")
     wr.add_argument("--objects", required=True, help="output directory of the objects (or rescore) stage")
     wr.add_argument("--meshes", action="append", default=[], help="where the tables' mesh files are")
-    wr.add_argument("--sim-setting", action="append", default=[], metavar="KEY=VALUE",
-                    help="SimSettings over the label settings (dt 1 ms), e.g. drive=self_locking")
     wr.add_argument("--names", default=None, metavar="FILE", help="only the objects named in FILE")
     wr.add_argument("--per-object", type=int, default=32, help="held precision candidates per object")
     wr.add_argument("--max-turn-deg", type=float, default=20.0, help="turn about the closing and approach axes, drawn in ±this")
@@ -355,14 +354,14 @@ def _run_perturb(p, args):
 
 def _run_rescore_or_wrap(p, args):
     try:
-        settings = _label_settings(args.sim_setting)
         names = read_name_list(args.names) if args.names else None
         if args.stage == "rescore":
-            s = rescored_tables.run_rescore_stage(args.objects, args.out, args.meshes, settings, args.max_held_rows,
-                                                  args.seed, args.workers, names, progress=not args.no_progress)
+            s = rescored_tables.run_rescore_stage(args.objects, args.out, args.meshes, args.sim_setting,
+                                                  args.max_held_rows, args.seed, args.workers, names,
+                                                  progress=not args.no_progress)
             line = f"rescore: objects_done={s['done']} kept={s['kept']} rows_simulated={s['simulated']} held={s['held']}"
         else:
-            s = power_grasps.run_wrap_stage(args.objects, args.meshes, settings, args.per_object, args.max_turn_deg,
+            s = power_grasps.run_wrap_stage(args.objects, args.meshes, args.per_object, args.max_turn_deg,
                                             args.max_depth_mm / 1000, seed=args.seed, workers=args.workers,
                                             names=names, progress=not args.no_progress)
             line = (f"wrap: objects_done={s['done']} kept={s['kept']} closings={s['tried']} held={s['held']} "
@@ -373,12 +372,6 @@ def _run_rescore_or_wrap(p, args):
         print(e)
     print(f"{line} error={len(s['errors'])}")
     return 1 if s["errors"] else 0
-
-
-def _label_settings(overrides) -> SimSettings:
-    """The label settings (dt 1 ms, 400 N/s) with "key=value" overrides."""
-    base = [f"{k}={v}" for k, v in dataclasses.asdict(SimSettings.for_labels()).items() if v is not None]
-    return sim_settings(base + list(overrides))
 
 
 def validation_names_of(model_path):

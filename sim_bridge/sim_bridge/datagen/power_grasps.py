@@ -10,7 +10,7 @@ This stage does that for each object: it draws `per_object` held precision rows 
 table (seeded by the object's name), turns each about its closing (y) and approach (z)
 axes by up to `max_turn_deg`, moves it along its approach as deep as the open hand goes
 without touching the object (2.5 mm steps, up to `max_depth_m`, then `clearance_m` back)
-and closes on it in Drake with the stage's settings. Every closing is a row (held or not);
+and closes on it in Drake with the table's own settings (the rows are appended to it). Every closing is a row (held or not);
 `wrap_rad` (grasp_simulation.wrap_angle_rad) records how far the distal links wrapped,
 and the mode is "power" only for a wrap (grasp_simulation.classify_mode).
 
@@ -49,7 +49,6 @@ class WrapTask:
     max_depth_m: float
     clearance_m: float
     seed: int
-    settings_json: str
 
 
 def offset(turn_y_rad, turn_z_rad, depth_m) -> np.ndarray:
@@ -90,7 +89,7 @@ def run_wrap_task(task: WrapTask):
     try:
         table = load_table(task.table_path)
         parents, turns = plan(table, task.per_object, task.max_turn_deg, task.seed)
-        settings = SimSettings.from_record(json.loads(task.settings_json))
+        settings = SimSettings.from_record(json.loads(str(table["sim_settings"])))  # the table's own: rows append
         sim = GraspSimulator(object_from_table(table, task.mesh_dirs), settings)
         rows, offsets = [], []
         for i, (ty, tz) in zip(parents, turns):
@@ -117,15 +116,15 @@ def wrap_path(objects_dir, name) -> pathlib.Path:
     return pathlib.Path(objects_dir) / DIRECTORY / f"{name}.npz"
 
 
-def run_wrap_stage(objects_out, mesh_dirs, settings: SimSettings, per_object=32, max_turn_deg=20.0,
-                   max_depth_m=0.04, clearance_m=0.001, seed=0, workers=None, names=None, progress=True):
+def run_wrap_stage(objects_out, mesh_dirs, per_object=32, max_turn_deg=20.0, max_depth_m=0.04, clearance_m=0.001,
+                   seed=0, workers=None, names=None, progress=True):
     """Toward-the-palm rows for every table of `objects_out` (or those in `names`) with
-    held precision rows and no such file yet. Returns a summary dict."""
+    held precision rows and no such file yet, simulated with each table's own settings.
+    Returns a summary dict."""
     objects_dir = pathlib.Path(objects_out) / "objects"
     if not objects_dir.is_dir():
         raise FileNotFoundError(f"{objects_out} holds no grasp tables (no objects/ directory): "
                                 "give the --out of `datagen objects`")
-    settings.validate()
     (objects_dir / DIRECTORY).mkdir(exist_ok=True)
     atomic_files.remove_stale_temporaries(objects_dir / DIRECTORY)
     tasks, kept = [], 0
@@ -140,7 +139,7 @@ def run_wrap_stage(objects_out, mesh_dirs, settings: SimSettings, per_object=32,
             if not (t["grasped"] & (t["mode"] == MODE_NAMES.index("precision"))).any():
                 continue
         tasks.append(WrapTask(path.stem, str(path), str(out), tuple(mesh_dirs), per_object, max_turn_deg,
-                              max_depth_m, clearance_m, seed, json.dumps(dataclasses.asdict(settings))))
+                              max_depth_m, clearance_m, seed))
     summary = dict(done=0, kept=kept, tried=0, held=0, power=0, errors=[])
 
     def on_result(task, result):

@@ -1,7 +1,8 @@
 """Grasp tables simulated again under other settings: `ros2 run sim_bridge datagen rescore`.
 
 A new hand model (the self-locking drive) changes what a grasp holds, not where it is
-sampled: the same candidates are closed again and scored with the new `SimSettings`.
+sampled: the same candidates are closed again and scored with each table's own
+`SimSettings` and the overrides given (e.g. drive=self_locking).
 Rows that did not hold are copied as they are when the closing itself is unchanged
 (`closing_unchanged`: only the drive and the ramps differ; the drive engages after the
 hand has settled), and simulated again otherwise. Toward-the-palm rows
@@ -45,7 +46,7 @@ class RescoreTask:
     table_path: str
     out_path: str
     mesh_dirs: tuple
-    settings_json: str
+    overrides: tuple  # ("key=value", ...) over the table's own settings
     max_held_rows: int
     seed: int
 
@@ -66,7 +67,7 @@ def run_rescore_task(task: RescoreTask):
     try:
         table = load_table(task.table_path)
         old = SimSettings.from_record(json.loads(str(table["sim_settings"])))
-        new = SimSettings.from_record(json.loads(task.settings_json))
+        new = with_overrides(old, task.overrides)
         rows = rows_to_simulate(table, old, new, task.max_held_rows, task.seed)
         if task.max_held_rows:  # a sample: the table is just those rows
             keep = rows
@@ -95,14 +96,23 @@ def run_rescore_task(task: RescoreTask):
         return "error", f"{task.name}: {type(e).__name__}: {e}"
 
 
-def run_rescore_stage(source_out, out, mesh_dirs, settings: SimSettings, max_held_rows=0, seed=0, workers=None,
+def with_overrides(settings: SimSettings, overrides) -> SimSettings:
+    """`settings` with "key=value" overrides (types from the fields' defaults); ValueError
+    for an unknown key or a bad value."""
+    from .cli import sim_settings  # the one parser of "key=value" settings
+    base = [f"{k}={v}" for k, v in dataclasses.asdict(settings).items() if v is not None]
+    return sim_settings(base + list(overrides))
+
+
+def run_rescore_stage(source_out, out, mesh_dirs, overrides=(), max_held_rows=0, seed=0, workers=None,
                       names=None, progress=True):
     """Every table of `source_out`/objects (or those in `names`) simulated again into
-    `out`/objects. Returns a summary dict."""
+    `out`/objects with its own settings and `overrides` ("key=value", e.g.
+    "drive=self_locking"). Returns a summary dict."""
     src = pathlib.Path(source_out) / "objects"
     if not src.is_dir():
         raise FileNotFoundError(f"{source_out} holds no grasp tables (no objects/ directory)")
-    settings.validate()
+    with_overrides(SimSettings(), overrides).validate()  # a bad override: one message before any work
     dst = pathlib.Path(out) / "objects"
     dst.mkdir(parents=True, exist_ok=True)
     atomic_files.remove_stale_temporaries(dst)
@@ -117,8 +127,8 @@ def run_rescore_stage(source_out, out, mesh_dirs, settings: SimSettings, max_hel
         if target.exists():
             kept += 1
             continue
-        tasks.append(RescoreTask(path.stem, str(path), str(target), tuple(mesh_dirs),
-                                 json.dumps(dataclasses.asdict(settings)), max_held_rows, seed))
+        tasks.append(RescoreTask(path.stem, str(path), str(target), tuple(mesh_dirs), tuple(overrides),
+                                 max_held_rows, seed))
     summary = dict(done=0, kept=kept, simulated=0, held=0, errors=[])
 
     def on_result(task, result):
