@@ -248,3 +248,26 @@ def test_the_box_holds_the_hand_along_the_straight_line_and_at_the_start():
     assert not parked.reachable and "at the start" in parked.message and "jog the arm into the box" in parked.message, \
         parked.message
     assert ur.called("moveL") == []
+
+
+# -- path 9: the stand-in follows ur_rtde where these paths depend on it ---------------------
+
+def test_the_stand_in_serves_cached_state_reconnects_resends_and_resets_the_tcp_like_ur_rtde():
+    from fake_rtde import FakeURController
+    ur = FakeURController()
+    control, receive = ur.connect()
+    assert control.setTcp(list(TCP_2F85)) and control.setPayload(0.9, [0.0, 0.0, 0.05])
+    pose = receive.getActualTCPPose()
+    ur.drop_link(0.3)
+    assert not control.isConnected() and not receive.isConnected()
+    assert receive.getActualTCPPose() == pose and control.isProgramRunning() is True, "cached state, no exception"
+    ur.reconnect_wait_s = 1.0
+    target = list(np.add(pose, [0.0, 0.0, -0.05, 0.0, 0.0, 0.0]))
+    assert control.moveL(target, 0.1, 0.5, True), "sent again after ur_rtde's own reconnect"
+    assert ur.reconnects == 1 and control.isConnected()
+    assert ur.motions[-1]["tcp"] == [0.0] * 6 and ur.payload == (0.0, [0.0, 0.0, 0.0]), "the script restarted"
+    assert control.getAsyncOperationProgress() >= 0
+    ur.press_stop_on_pendant()  # the script ends mid-move: nothing writes the register
+    assert control.getAsyncOperationProgress() >= 0 and not ur.motion_running
+    control.reuploadScript()  # the new script's reset_async_progress()
+    assert control.getAsyncOperationProgress() < 0
