@@ -187,7 +187,7 @@ def test_lost_link_mid_motion_raises_then_reconnects():
     ur.lose_link_after_s = None
     result = arm.move(tcp(0.15, 0.15, 0.40), 0.5)  # fresh interfaces, TCP set again
     assert result.success, result.message
-    assert ur.connects == 2 and len(ur.called("setTcp")) == 4, "at each connect and before each moveL"
+    assert ur.connects == 2 and len(ur.called("setTcp")) == 6, "at each connect, check and moveL"
 
 
 def test_a_call_that_never_answers_is_a_lost_link_not_a_hang():

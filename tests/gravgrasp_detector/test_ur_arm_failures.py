@@ -60,7 +60,7 @@ def test_protective_stop_cleared_on_the_pendant_restores_control_by_itself():
     assert restored == ["control restored after a PROTECTIVE_STOP: the RTDE control script had ended; "
                         "re-uploaded it and set the TCP again"], lines
     assert ur.program_running and len(ur.called("reuploadScript")) == 1
-    assert len(ur.called("setTcp")) == 3, "the TCP lives in the script: set again (connect, the motion, the restore)"
+    assert len(ur.called("setTcp")) == 4, "the TCP lives in the script: set again (connect, check, moveL, restore)"
     assert ur.controller_tcp == [0.0, 0.0, 0.1558, 0.0, 0.0, 0.0]
     again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
     assert again.success, again.message

@@ -35,13 +35,29 @@ def test_tcp_and_payload_are_set_again_before_every_moveL():
     assert _reached(ur, arm.to_base(tcp(0.15, 0.10, 0.25))) < 1e-6
 
 
-def test_a_tcp_lapse_during_the_move_is_not_a_success():
+def test_a_move_resent_with_the_pendants_tcp_is_stopped_and_latched():
     """ur_rtde reconnects inside moveL (its sendCommand: reconnect, then send the move
-    again): the move runs with the pendant's TCP (the flange), so the fingers go 156 mm
-    past the target while the TCP pose reads "arrived". The flange from the joint angles
-    says otherwise."""
+    again): the move runs with the pendant's TCP (the flange), so the fingers would go
+    156 mm past the target. The TCP read back during the motion says so."""
     arm, ur = make_arm()
     arm.connect()
+    fired = []
+    ur.on_call["moveL"] = lambda: fired or (fired.append(1), ur._reconnect())
+    target = tcp(0.15, 0.15, 0.30)
+    result = arm.move(target, 0.5)
+    print(f"\n{result.message}")
+    assert not result.success and result.message.startswith("ur_rtde reconnected by itself during the motion"), \
+        result.message
+    assert "ran with the pendant's TCP" in result.message and not ur.motion_running
+    assert arm.latched and "is latched" in arm.move(tcp(0.15, 0.15, 0.25), 0.5).message
+
+
+def test_a_tcp_lapse_the_polls_missed_is_not_a_success():
+    """The backstop: a motion over before the first poll. At its end the flange from the
+    joint angles (nominal FK) and the TCP pose disagree by the 156 mm the TCP lapsed."""
+    arm, ur = make_arm()
+    arm.connect()
+    ur.time_scale = 1e-4  # every motion is over within 10 ms, before the first 20 ms poll
     fired = []
     ur.on_call["moveL"] = lambda: fired or (fired.append(1), ur._reconnect())
     target = tcp(0.15, 0.15, 0.30)
@@ -50,7 +66,7 @@ def test_a_tcp_lapse_during_the_move_is_not_a_success():
     assert not result.success and "156 mm" in result.message and "ur_rtde restarted its control script" in result.message
     assert pose_error(ur.tcp_pose, arm.to_base(target))[0] < 1e-6, "the controller's TCP did reach the target"
     assert _reached(ur, arm.to_base(target)) > 0.15
-    assert arm.latched and "is latched" in arm.move(tcp(0.15, 0.15, 0.25), 0.5).message
+    assert arm.latched
 
 
 # -- path 2: a move ur_rtde sends again after the link came back ---------------------------
@@ -271,3 +287,25 @@ def test_the_stand_in_serves_cached_state_reconnects_resends_and_resets_the_tcp_
     assert control.getAsyncOperationProgress() >= 0 and not ur.motion_running
     control.reuploadScript()  # the new script's reset_async_progress()
     assert control.getAsyncOperationProgress() < 0
+
+
+def test_ur_rtde_reconnecting_mid_motion_is_named_at_once():
+    """Found by the arm soak: a 0.3 s drop during a motion, a kick waiting through it, and
+    ur_rtde's own reconnect restarts the script: the motion ends, the TCP is the pendant's,
+    and the async register can read as before the motion. Named at once, not after the
+    motion's deadline; the next request sets the TCP before it reads the start pose."""
+    arm, ur = make_arm(workspace_max_m=(0.40, 0.40, 0.62))  # the flange starts at 0.556 m
+    arm.connect()
+    ur.reconnect_wait_s = 1.0
+    ur.on_call["getAsyncOperationProgress"] = lambda: ur._motion and time.monotonic() - ur._motion["t0"] > 0.2 \
+        and ur.link_up and not ur.reconnects and ur.drop_link(0.3)
+    t0 = time.monotonic()
+    result = arm.move(tcp(0.15, 0.15, 0.20), 0.1)  # down from 0.40 m: 2 s of motion
+    print(f"\n{time.monotonic() - t0:.2f} s: {result.message}")
+    assert not result.success and result.message.startswith("ur_rtde reconnected by itself during the motion"), \
+        result.message
+    assert time.monotonic() - t0 < 1.5 and not ur.motion_running and not arm.latched
+    ur.on_call.clear()
+    # read in the pendant's TCP (the flange), the start would put the hand's top 156 mm higher: out of the box
+    again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
+    assert again.success, again.message

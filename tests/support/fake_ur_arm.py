@@ -5,6 +5,8 @@ the arm soak. Takes the ur_arm node's ROS arguments.
 Environment (all optional):
     FAKE_UR_DROP_EVERY_S   drop the RTDE link this often (ur_rtde then reconnects by itself)
     FAKE_UR_DROP_FOR_S     for this long (default 0.3 s)
+    FAKE_UR_RECONNECT_WAIT_S  a command sent during a drop waits this long for ur_rtde's own
+                           reconnect, then is sent again (fake_rtde's reconnect_wait_s; default 0)
     FAKE_UR_LOG            append one JSON line per motion the controller ran, and per request
                            answered, for the soak's checks
 """
@@ -35,6 +37,7 @@ def main():
             with log_lock, open(log_path, "a") as f:
                 f.write(json.dumps(entry) + "\n")
 
+    ur.reconnect_wait_s = float(os.environ.get("FAKE_UR_RECONNECT_WAIT_S", "0"))
     drop_every = float(os.environ.get("FAKE_UR_DROP_EVERY_S", "0"))
     drop_for = float(os.environ.get("FAKE_UR_DROP_FOR_S", "0.3"))
 
@@ -53,10 +56,10 @@ def main():
             self.get_logger().info("fake_ur_arm: the ur_rtde stand-in in place of a robot")
 
         def _on_move(self, request, response):
-            t0 = time.time()
+            t0, t0_mono = time.time(), time.monotonic()
             n = len(ur.motions)
             response = super()._on_move(request, response)
-            record({"t": t0, "t_end": time.time(), "event": "request", "check_only": bool(request.check_only),
+            record({"t": t0, "t0_mono": t0_mono, "t1_mono": time.monotonic(), "event": "request", "check_only": bool(request.check_only),
                     "success": bool(response.success), "reachable": bool(response.reachable),
                     "message": response.message, "deadline": request.deadline.sec + request.deadline.nanosec * 1e-9,
                     "target_base": self.arm.to_base(self._target(request.target)) if response.reachable else None,

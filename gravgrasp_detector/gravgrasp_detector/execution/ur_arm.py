@@ -498,6 +498,9 @@ class URArm:
         if refusal:
             return MoveResult(False, False, f"refused: {refusal}; nothing moved")
         control = self._control
+        # The TCP first: the start pose is read in the controller's TCP, which a restart of the
+        # script by ur_rtde itself has turned back to the pendant's.
+        self._configure(control)
         X_task_start = np.asarray(self.settings.X_task_base, float) @ ur_pose_to_matrix(self._rpc(receive.getActualTCPPose))
         refusal = self._box_refusal(X_task_tcp, X_task_start)
         if refusal:
@@ -642,6 +645,12 @@ class URArm:
             # stopped mid-move (the watchdog, the pendant's Stop) leaves "running" for ever.
             if not self._rpc(control.isProgramRunning):
                 return self._script_ended(receive, target, joints)
+            # ur_rtde reconnecting by itself mid-motion (a kick or a poll hit a socket error)
+            # restarts its script: that ends the motion, or, when the command it resends is this
+            # moveL, runs it with the pendant's TCP; either way the TCP is the pendant's again.
+            held = [float(v) for v in self._rpc(control.getTCPOffset)]
+            if max(abs(a - b) for a, b in zip(held, s.tcp_in_flange)) > 1e-6:
+                return self._restarted_mid_motion(control, receive, target, joints)
             if self._clock() > deadline_motion:
                 self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
                 where, left_m = self._where(receive, target)
@@ -663,6 +672,21 @@ class URArm:
                               joints, False, dp)
         return MoveResult(True, True, f"reached the target ({dp * 1000:.1f} mm, {da:.2f} deg){speed_note}", joints,
                           False, dp)
+
+    def _restarted_mid_motion(self, control, receive, target, joints) -> MoveResult:
+        s = self.settings
+        progress = self._rpc(control.getAsyncOperationProgress)  # the restarted script's register
+        self._rpc(control.stopL, float(s.stop_deceleration_mps2), False)
+        where, left_m = self._where_flange(receive, target)
+        text = ("ur_rtde reconnected by itself during the motion and restarted its control script (the controller's "
+                f"TCP is the pendant's again): stopped (stopL) {where}")
+        if progress >= 0:  # a motion still ran: the move ur_rtde resent, with the wrong TCP
+            self.latched = "a motion with the wrong TCP"
+            return MoveResult(True, False, f"{text}; the move ur_rtde sent again ran with the pendant's TCP, so the hand "
+                              "is not where the target says; latched: check the cell, then call ~/arm with data: true",
+                              joints, False, left_m)
+        self._stop_cause = "ur_rtde's own reconnect"
+        return MoveResult(True, False, f"{text}; ur_arm sets the TCP again before the next motion", joints, False, left_m)
 
     def _script_ended(self, receive, target, joints) -> MoveResult:
         """The control script stopped during the motion with no safety stop: the watchdog
@@ -761,6 +785,12 @@ class URArm:
     def _tcp_force_n(self, receive) -> float:
         """|force| of the controller's TCP wrench (payload-compensated), N."""
         return float(np.linalg.norm(np.asarray(self._rpc(receive.getActualTCPForce), float)[:3]))
+
+    def _where_flange(self, receive, target) -> tuple[str, float]:
+        """_where when the controller's TCP may not be tcp_in_flange: from the joint angles."""
+        X = nominal_flange_in_base(self._rpc(receive.getActualQ)) @ ur_pose_to_matrix(self.settings.tcp_in_flange)
+        dp = float(np.linalg.norm(X[:3, 3] - np.asarray(target[:3])))
+        return f"{dp * 1000:.0f} mm before the target", dp
 
     def _where(self, receive, target) -> tuple[str, float]:
         """(words, distance [m]): where the TCP stopped, from the target."""
