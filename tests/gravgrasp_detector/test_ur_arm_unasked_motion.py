@@ -309,3 +309,15 @@ def test_ur_rtde_reconnecting_mid_motion_is_named_at_once():
     # read in the pendant's TCP (the flange), the start would put the hand's top 156 mm higher: out of the box
     again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
     assert again.success, again.message
+
+
+def test_a_tcp_that_changes_while_idle_is_not_a_motion():
+    """Found by the arm soak: the TCP pose jumps 156 mm when ur_rtde restarts its script
+    (the pendant's TCP) with the arm standing still; the idle guard watches the flange."""
+    arm, ur = make_arm()
+    assert arm.move(tcp(0.15, 0.15, 0.30), 0.5).success
+    assert arm.watch() is None  # takes the pose where the request left the arm
+    ur.drop_link(0.05)
+    assert _wait(lambda: ur.reconnects == 1 and ur.link_up, 2.0)
+    assert ur.controller_tcp == [0.0] * 6
+    assert arm.watch() is None and not arm.latched

@@ -168,7 +168,7 @@ class URArm:
         self._kick_ok_t = None   # when the last kick was accepted (monotonic)
         self._kick_gap_s = 0.0   # the largest gap between accepted kicks since reset
         self._kick_refused_gap_s = 0.0  # the gap before the kick the controller refused
-        self._idle_pose = None   # where the TCP was when the last request ended
+        self._idle_pose = None   # where the flange was when the last request ended (base frame)
 
     # -- connection -----------------------------------------------------------------
 
@@ -734,11 +734,13 @@ class URArm:
             control, receive = self._control, self._receive
             if control is None:
                 return None
-            pose = self._rpc(receive.getActualTCPPose)
+            # The flange from the joint angles: the TCP pose jumps without any motion when the
+            # controller's TCP changes (ur_rtde restarting its script, ur_arm setting it again).
+            flange = nominal_flange_in_base(self._rpc(receive.getActualQ))[:3, 3]
             if self._idle_pose is None:
-                self._idle_pose = pose
+                self._idle_pose = flange
                 return None
-            moved_m = float(np.linalg.norm(np.subtract(pose[:3], self._idle_pose[:3])))
+            moved_m = float(np.linalg.norm(flange - self._idle_pose))
             if moved_m <= self.settings.idle_motion_limit_m:
                 return None
             self._rpc(control.stopL, float(self.settings.stop_deceleration_mps2), False)
