@@ -101,6 +101,13 @@ SOAK_S ?= 600
 soak: setup
 	@$(ROS) ros2 run sim_bridge soak --duration-s $(SOAK_S) --out out/soak
 
+# The UR cell's stack with the ur_rtde stand-in: grasps back to back, the RTDE link dropped
+# every 30 s, both cores loaded; arm_soak_ok last (gravgrasp_detector/doc/arm-adapter.md).
+.PHONY: soak-arm
+SOAK_ARM_S ?= 300
+soak-arm: setup
+	@$(ROS) python tests/support/arm_soak.py --duration-s $(SOAK_ARM_S) --drop-every-s 30 --out out/soak-arm
+
 # Clutter removal against object weight (issue 8); both resume in their --out directory.
 .PHONY: benchmark benchmark-quick
 benchmark-quick: setup
