@@ -14,39 +14,65 @@ and a rotation vector in radians, in the robot's base frame):
     X_task_base  where the robot's base frame sits in the task frame (a parameter)
     X_base_tcp = inv(X_task_base) @ X_task_tcp   what moveL gets
     tcp_in_flange  the TCP in the tool flange frame, set on the controller with setTcp
-                   when connecting (2F-85: 0.1558 m out along the flange z)
+                   when connecting and before every motion (2F-85: 0.1558 m out along
+                   the flange z)
 
 What happens to a request, in order; nothing moves until every check passed. The
 robot's state comes before any question about the pose: ur_rtde answers
 isPoseWithinSafetyLimits false whenever its command cannot reach the control script
 (protective stop, emergency stop, script stopped), which would name the wrong cause.
 
-    0. a motion while the emergency stop is latched                    refused (until arm(True))
-    1. the TCP target lies inside the protective box (task frame)     refused otherwise
+    0. a motion while a latch is set (emergency stop, disarm, the pendant's
+       Stop, a motion nobody asked for, a motion with the wrong TCP)   refused (until arm(True))
+    1. the TCP target inside the protective box, and the hand there too
+       (the TCP, the flange, the open 2F-85's hull corners)            refused otherwise
     2. speed: 0 means the default; above max_speed_mps it is capped
-    3. connected (else one reconnect attempt)                          ConnectionLost
+    3. connected (else one reconnect attempt); a request still waiting
+       for a reconnect when its deadline passes                         ConnectionLost / refused
     4. safety mode normal or reduced (protective stop, emergency
-       stop, safeguard stop, violation, fault named with what to do)   refused otherwise
+       stop, safeguard stop, recovery, violation, fault named with
+       what to do)                                                      refused otherwise
     5. robot mode RUNNING (powered, brakes released)                   refused otherwise
-    6. the RTDE control script runs; if it ended (a cleared protective
-       or emergency stop, the watchdog, a program on the pendant) it is
-       re-uploaded, the TCP set again, and one line logged              refused if that fails
+    6. the RTDE control script runs; if it ended after a protective or
+       emergency stop (cleared on the pendant), the watchdog or ~/arm,
+       it is re-uploaded, the TCP set again, one line logged; if it ended
+       with no such cause (the pendant's Stop, another program) the
+       adapter latches until arm(True)                                  refused otherwise
     7. speed slider above 1 %                                          refused otherwise
-    8. the controller says the pose is within its safety limits and
+    8. setTcp, setPayload, getTCPOffset read back; then the hand at the
+       start pose and along the straight line to the target stays in
+       the box                                                          refused otherwise
+    9. the controller says the pose is within its safety limits and
        has an inverse-kinematics solution                              refused otherwise
-    9. setWatchdog(1 / watchdog_period_s), moveL (asynchronous), then poll: stop
-       requested or the emergency stop latched -> stopL; protective stop, lost link,
-       or no end within the expected time (+ margin, scaled by the speed slider) ->
-       stopL and fail; contact: the TCP force's magnitude risen by more than
-       contact_force_limit_n since the motion began -> stopL and fail, "stopped by
-       contact" (the sim stand-in's rule and words); at the end the actual TCP must be
-       within position/orientation tolerance of the target.
+   10. the TCP and payload set and read back again, setWatchdog(1 / watchdog_period_s);
+       then, under one lock with stop() and latch(): the stop, the latch and the request's
+       deadline checked, moveL (asynchronous) sent. Poll: stop, latch -> stopL; the
+       deadline -> stopL; protective stop, lost link -> fail; the script not running
+       (the watchdog, named by the kick gap, or the pendant's Stop, latched) -> fail at
+       once; the controller's TCP no longer tcp_in_flange (ur_rtde reconnected by itself
+       and restarted its script) -> stopL, fail, and latch if a motion still ran (the move
+       it sent again, with the pendant's TCP); contact: the TCP force's magnitude risen by
+       more than contact_force_limit_n since the motion began -> stopL and fail, "stopped
+       by contact" (the sim stand-in's rule and words); no end within the expected time
+       (+ margin, scaled by the speed slider) -> stopL and fail. At the end the actual TCP
+       must be within tolerance of the target, and the flange from the joint angles
+       (nominal FK) must agree with it (else the TCP lapsed: latched).
+
+Between requests (watch(), at the node's state rate): a flange (from the joint angles)
+that moves more than idle_motion_limit_m is a motion nobody asked for: stopL and latch.
+
+After a lost link: the dropped interfaces are disconnect()ed (ur_rtde would otherwise
+reconnect them by itself and send again what they were sending); the fresh connection's
+first command is stopL; ur_arm never resumes a motion by itself.
 
 Fail-safe: once a watchdog is set, this connection's kick loop sends kickWatchdog every
-poll_period_s. A lost link (cable, a hung process) stops the kicks, and the controller
-stops the control script, and with it the arm, within watchdog_period_s. Nothing is
-kicked while the script does not run (a refused kick ends the kicks until the next
-setWatchdog): ur_rtde would print an error for every one.
+poll_period_s, ahead of any call waiting for the connection's thread. A lost link (cable,
+a hung process) stops the kicks, and the controller stops the control script, and with it
+the arm, within watchdog_period_s (0.5 s: each kick needs two handoffs of Python's GIL and
+waits behind the call in flight; a loaded 2-core machine showed gaps of 100-200 ms). Each
+motion logs its largest kick gap. Nothing is kicked while the script does not run (a
+refused kick ends the kicks until the next setWatchdog): ur_rtde would print an error for
+every one.
 
 Why the contact stop counts the rise, not the force: the reading has a bias (payload
 settings, drift) and a motion may start under load, e.g. a lift with the closed fingers

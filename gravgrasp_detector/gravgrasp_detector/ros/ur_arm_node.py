@@ -6,7 +6,7 @@ Serves the same interface as the Drake sim bridge, so the executor cannot tell t
 
 | name | type | |
 | --- | --- | --- |
-| `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion (moveL) to a pose in `frame_id`; `check_only` asks the controller (safety limits, IK) without moving |
+| `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion (moveL) to a pose in `frame_id`; `check_only` asks the controller (safety limits, IK) without moving; past its `deadline` a request is refused, a motion stopped |
 | `stop_motion` | std_srvs/Trigger | halts the running motion at once (stopL; its `move_to_pose` answers `success: false`) |
 | `~/reconnect` | std_srvs/Trigger | drop the RTDE connection and build it again (never needed after a cleared stop: ur_arm restarts its control script itself) |
 | `emergency_stop` (sub) | std_msgs/Bool | `true` halts the running motion (stopL) and latches: every motion is refused until `~/arm` |
@@ -19,6 +19,8 @@ A thin adapter around `ur_arm.URArm` (frames, limits, stop, timeouts; see there)
 ur_rtde's RTDEControlInterface/RTDEReceiveInterface. The node keeps serving while the
 robot is unreachable: requests are answered with why, and it reconnects (or restarts the
 control script after a cleared protective or emergency stop) every `reconnect_period_s`.
+Between requests, at `state_rate_hz`, it watches the arm stand still (URArm.watch): a
+motion nobody asked for is stopped and latched until `~/arm`.
 Once serving it logs ``ur_arm ready``.
 
 Monitoring only (pendant in Local mode), a flange pose is published only while the
