@@ -321,3 +321,21 @@ def test_a_tcp_that_changes_while_idle_is_not_a_motion():
     assert _wait(lambda: ur.reconnects == 1 and ur.link_up, 2.0)
     assert ur.controller_tcp == [0.0] * 6
     assert arm.watch() is None and not arm.latched
+
+
+def test_a_motion_ended_by_ur_rtdes_restart_is_not_called_a_tcp_lapse():
+    """Found by the arm soak: the restart ends the motion short and resets the async
+    register to a value that differs from before, so the loop sees an end; the TCP pose,
+    now read in the pendant's TCP, is off the target. A restart, said so, not latched (no
+    motion ran with the wrong TCP)."""
+    arm, ur = make_arm()
+    arm.connect()
+    assert arm.move(tcp(0.15, 0.15, 0.30), 0.5).success  # the register: -1 after this one
+    fired = []
+    ur.on_call["getSafetyMode"] = lambda: (not fired and ur._motion and time.monotonic() - ur._motion["t0"] > 0.2
+                                           and (fired.append(1), ur.drop_link(0.0)))
+    result = arm.move(tcp(0.15, 0.15, 0.45), 0.1)
+    print(f"\n{result.message}")
+    assert fired and not result.success, result.message
+    assert result.message.startswith("ur_rtde reconnected by itself during the motion"), result.message
+    assert not arm.latched

@@ -86,3 +86,17 @@ def test_killing_the_arm_process_mid_move_disarms_and_a_new_one_serves(ros_proce
         assert again.result_code == R.SUCCESS, again.message
     finally:
         spin.shutdown()
+
+
+def test_a_short_arm_soak(tmp_path):
+    """`make soak-arm` for 15 s: the RTDE link dropped every 4 s, one busy process beside
+    the stack; no motion outside an accepted request, no SUCCESS off its target."""
+    import subprocess
+    run = subprocess.run([sys.executable, str(ROOT / "tests" / "support" / "arm_soak.py"), "--duration-s", "15",
+                          "--drop-every-s", "4", "--load-processes", "1", "--out", str(tmp_path / "soak")],
+                         capture_output=True, text=True, timeout=240)
+    lines = run.stdout.strip().splitlines()
+    print("\n" + "\n".join(lines[-8:]))
+    assert lines and lines[-1] == "arm_soak_ok=1", run.stdout[-3000:] + run.stderr[-3000:]
+    figures = dict(line.split("=", 1) for line in lines if "=" in line and " " not in line)
+    assert int(figures["link_drops"]) >= 2 and int(figures["arm_successes"]) >= 1, figures

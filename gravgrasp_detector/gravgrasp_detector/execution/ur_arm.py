@@ -687,9 +687,14 @@ class URArm:
             return MoveResult(True, False, f"motion stopped by {self._stopper()} {where}", joints, False, left_m)
         actual = self._rpc(receive.getActualTCPPose)
         dp, da = pose_error(actual, target)
-        if (dp > s.position_tolerance_m or da > s.orientation_tolerance_deg) and not self._rpc(control.isProgramRunning):
+        arrived = dp <= s.position_tolerance_m and da <= s.orientation_tolerance_deg
+        if not arrived and not self._rpc(control.isProgramRunning):
             return self._script_ended(receive, target, joints)
-        lapse = self._tcp_lapse(receive, actual)
+        held = [float(v) for v in self._rpc(control.getTCPOffset)]
+        if max(abs(a - b) for a, b in zip(held, s.tcp_in_flange)) > 1e-6 and not arrived:
+            # the script restarted (ur_rtde's own reconnect) and ended the motion short
+            return self._restarted_mid_motion(control, receive, target, joints)
+        lapse = self._tcp_lapse(receive, actual)  # arrived with the pendant's TCP: the fingers are not there
         if lapse:
             return MoveResult(True, False, lapse, joints, False, dp)
         if dp > s.position_tolerance_m or da > s.orientation_tolerance_deg:
