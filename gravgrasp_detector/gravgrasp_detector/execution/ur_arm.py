@@ -262,10 +262,7 @@ class URArm:
             if not self._rpc(control.setPayload, float(self.settings.payload_kg),
                              [float(v) for v in self.settings.payload_cog_m]):
                 raise self._lost("the controller refused setPayload")
-        try:
-            held = [float(v) for v in self._rpc(control.getTCPOffset)]
-        except ConnectionLost:
-            raise
+        held = [float(v) for v in self._rpc(control.getTCPOffset)]
         if len(held) != 6 or max(abs(a - b) for a, b in zip(held, tcp)) > 1e-6:
             raise self._lost(f"the controller holds the TCP {np.round(held, 4).tolist()} right after setTcp "
                              f"{tcp}: its control script restarted in between")
@@ -753,11 +750,10 @@ class URArm:
 
     def watch(self) -> str | None:
         """Between requests (the node calls this at its state rate): the arm must not move.
-        A TCP that drifted more than idle_motion_limit_m since the last request ended is a
-        motion nobody asked for (ur_rtde resending a command after its own reconnect):
-        stopL and latch. Also latches a program stopped on the pendant. Returns the line to
-        log, or None."""
-        if self.busy or self._control is None or self._motion_lock.locked():
+        A flange that moved more than idle_motion_limit_m since the last request ended is a
+        motion nobody asked for (ur_rtde resending a command after its own reconnect, or
+        the pendant): stopL and latch. Returns the line to log, or None."""
+        if self.busy or self._control is None:
             return None
         if not self._motion_lock.acquire(blocking=False):
             return None
