@@ -22,19 +22,26 @@ class Fault(Exception):
     person): no attempt, and the round ends."""
 
 
+class Stalled(Exception):
+    """detect() saw no fresh view (the camera or the TSDF stopped): the round ends with
+    that reason, never read as "nothing detected"."""
+
+
 def clear_table(cell, n_objects: int, attempts_per_object: int = ATTEMPTS_PER_OBJECT) -> dict:
     """Clear a table. `cell`:
 
         objects_on_table() -> names of the objects still on the table
-        detect() -> (scene, grasps): a fresh view and the grasps detected in it, best first
+        detect() -> (scene, grasps): a fresh view and the grasps detected in it, best first;
+            raises Stalled when no fresh view comes (the round ends)
         execute(grasp, scene) -> {"outcome": "success" or why not, ...}: one attempt;
             raises Refused (try the next grasp) or Fault (the round ends)
         remove_fallen() -> names of the objects that left the table since the last call
 
     A round ends when the table is clear, after CONSECUTIVE_FAILURES_END failures in a
     row, at attempts_per_object x n_objects attempts, when nothing is detected, when no
-    detected grasp is executable, or on a Fault.
+    detected grasp is executable, on a Fault, or when the view stalls.
     -> {end, attempts, fell_off} (+ fault: its message, when a Fault ended the round;
+    + stalled: why, when no fresh view came;
     + refused: {grasps, first: the first refusal reasons}, when no grasp was feasible);
     each attempt is {rank, grasps_detected, skipped_infeasible, **execute's dict, success}
     (the benchmark's execute puts `grasp_fields` and the executor's stopped_by_contact there)."""
@@ -50,7 +57,10 @@ def clear_table(cell, n_objects: int, attempts_per_object: int = ATTEMPTS_PER_OB
         if len(attempts) >= max_attempts:
             end = "attempt_limit"
             break
-        scene, grasps = cell.detect()
+        try:
+            scene, grasps = cell.detect()
+        except Stalled as e:
+            return {"end": "view_stalled", "attempts": attempts, "fell_off": fell_off, "stalled": str(e)}
         if not grasps:
             end = "no_grasp_detected"
             break

@@ -6,8 +6,9 @@ robot, then repeats: fresh TSDF of the scene -> top grasp from /grasps ->
 /execute_grasp -> a lifted object is taken out of the scene. The round is the clutter
 benchmark's (`benchmark.clearing.clear_table`, the paper's clutter-removal protocol):
 it ends when the table is clear, after 2 consecutive failures, when no grasp is
-detected or none passes the executor's checks, or when the executor reports a fault
-(it disarms; a person would look); SR and CR are counted as the benchmark does.
+detected or none passes the executor's checks, when the executor reports a fault
+(it disarms; a person would look), or when no fresh view comes (the camera or the TSDF
+stalled: said so, with the frames seen); SR and CR are counted as the benchmark does.
 
 Gravity-aware: every object weighs `--mass-kg` (1 kg by default), and the detector
 only returns grasps scored at least `--safety` x its weight; each attempt prints the
@@ -52,7 +53,7 @@ import rclpy
 from geometry_msgs.msg import PoseStamped
 from matplotlib.figure import Figure
 from rclpy.executors import MultiThreadedExecutor
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
@@ -60,7 +61,7 @@ from gravgrasp_detector.poses import matrix_from_pose
 from gravgrasp_msgs.msg import GraspArray, ObjectStates
 from gravgrasp_msgs.srv import ExecuteGrasp, RemoveObject
 
-from ..benchmark.clearing import CONSECUTIVE_FAILURES_END, Fault, Refused, clear_table, success_rates
+from ..benchmark.clearing import CONSECUTIVE_FAILURES_END, Fault, Refused, Stalled, clear_table, success_rates
 from .processes import Processes, installed
 from .service_call import call_blocking
 
@@ -69,6 +70,12 @@ REFUSED_BEFORE_MOTION = (ExecuteGrasp.Response.IN_COLLISION, ExecuteGrasp.Respon
 FAULTS = (ExecuteGrasp.Response.GRIPPER_FAULT, ExecuteGrasp.Response.ARM_FAULT, ExecuteGrasp.Response.TIMEOUT,
           ExecuteGrasp.Response.NOT_ARMED, ExecuteGrasp.Response.STALE_SCENE)
 G_MPS2 = 9.81
+# The sim's camera is reliable (sim_node.CAMERA_QOS): on a busy machine best effort lost
+# most of its 1.2 MB depth frames, in fragments, and the TSDF starved.
+CAMERA_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+CAMERA_TOPICS = ("/depth/image", "/depth/camera_info", "/camera_pose")
+# A fresh view: a volume stamped this long after the TSDF reset (>= 2 frames at 4 Hz)
+FRESH_AFTER_RESET_S = 0.6
 
 
 RESULT_NAMES = {getattr(ExecuteGrasp.Response, n): n for n in dir(ExecuteGrasp.Response)
@@ -85,11 +92,11 @@ class Client:
         self.modes_seen = {}  # object -> grasp mode the sim reported while in the hand (since reset)
         self.node.create_subscription(ObjectStates, "object_states", self._on_states, 10)
         self.depth, self.info, self.camera_pose = None, None, None
-        self.node.create_subscription(Image, "depth/image", lambda m: setattr(self, "depth", m), qos_profile_sensor_data)
-        self.node.create_subscription(CameraInfo, "depth/camera_info", lambda m: setattr(self, "info", m),
-                                      qos_profile_sensor_data)
+        self.depth_frames = 0  # depth images heard: what a stalled view reports
+        self.node.create_subscription(Image, "depth/image", self._on_depth, CAMERA_QOS)
+        self.node.create_subscription(CameraInfo, "depth/camera_info", lambda m: setattr(self, "info", m), CAMERA_QOS)
         self.node.create_subscription(PoseStamped, "camera_pose", lambda m: setattr(self, "camera_pose", m),
-                                      qos_profile_sensor_data)
+                                      CAMERA_QOS)
         self.executor = MultiThreadedExecutor(num_threads=3)
         self.executor.add_node(self.node)
         threading.Thread(target=self.executor.spin, daemon=True).start()
@@ -105,6 +112,10 @@ class Client:
     def _on_grasps(self, msg):
         self.grasps = msg
         self.grasps_event.set()
+
+    def _on_depth(self, msg):
+        self.depth = msg
+        self.depth_frames += 1
 
     def call(self, srv_type, name, request, timeout_s):
         """The service's response; raises ServiceTimeout (the round cannot go on)."""
@@ -125,18 +136,43 @@ class Client:
         return self.states
 
     def fresh_grasps(self, timeout_s):
-        """Reset the TSDF, then wait for grasps detected in volumes integrated after it."""
+        """Reset the TSDF, then the grasps detected in a volume integrated after it; Stalled
+        (naming the depth frames heard since the reset) when none comes within timeout_s."""
         self.call(Trigger, "tsdf/reset", Trigger.Request(), 10)
+        # after the call: a frame that waited in the tsdf node's queue through the reset
+        # is fused after it, and must not make an older view look fresh
         t_reset = self.node.get_clock().now().nanoseconds
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            self.grasps_event.clear()
-            self.grasps_event.wait(max(0.0, deadline - time.monotonic()))
-            g = self.grasps
-            # Two integrated frames at least (volume stamp well after the reset).
-            if g is not None and g.header.stamp.sec * 10**9 + g.header.stamp.nanosec > t_reset + 0.6e9:
-                return g
-        return None
+        frames_before = self.depth_frames
+        return wait_for_fresh_grasps(lambda: self.grasps, self.grasps_event, lambda: self.depth_frames - frames_before,
+                                     t_reset, timeout_s)
+
+
+def stamp_ns(header) -> int:
+    return header.stamp.sec * 10**9 + header.stamp.nanosec
+
+
+def wait_for_fresh_grasps(latest, arrived: threading.Event, frames_since, t_reset_ns: int, timeout_s: float,
+                          poll_s: float = 0.25):
+    """The first grasps (`latest()`: the newest GraspArray or None) whose volume is stamped
+    FRESH_AFTER_RESET_S after the reset (`t_reset_ns`); `arrived` is set on each new one.
+    Checks before it waits, and wakes every poll_s, so a message that came between two
+    checks is never missed. Raises Stalled when none comes within timeout_s, saying how many
+    depth frames (`frames_since()`) came since the reset: none or one is a stalled camera,
+    more a stalled TSDF or detector."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        g = latest()
+        if g is not None and stamp_ns(g.header) > t_reset_ns + FRESH_AFTER_RESET_S * 1e9:
+            return g
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        arrived.wait(min(left, poll_s))
+        arrived.clear()
+    n = frames_since()
+    where = ("the camera stalled" if n < 2 else "the TSDF or the detector stalled")
+    raise Stalled(f"no view after the TSDF reset within {timeout_s:.0f} s: {where} "
+                  f"({n} depth frame{'s' if n != 1 else ''} since the reset)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -426,6 +462,8 @@ def run(args) -> dict:
         procs.wait_for("sim", "sim ready", 120)
         procs.start("stack", [installed("gravgrasp_detector", "stack"), "--ros-args",
                               "-p", f"detect:model_path:={args.model}", "-p", f"execute:gripper_port:={link}",
+                              *(a for topic in CAMERA_TOPICS
+                                for a in ("-p", f"tsdf:qos_overrides.{topic}.subscription.reliability:=reliable")),
                               "-p", f"detect:min_score_n:={min_score_n}",
                               "-p", f"detect:validness_threshold:={args.validness_threshold}",
                               # The sim runs slower than real time (0.3-0.6x while it holds an
@@ -453,6 +491,7 @@ def run(args) -> dict:
                     "consecutive_failures": f"{CONSECUTIVE_FAILURES_END} failures in a row: round ends",
                     "attempt_limit": f"{len(record['attempts'])} attempts: round ends",
                     "no_grasp_detected": f"no grasp scored >= {min_score_n:.1f} N detected: round ends",
+                    "view_stalled": f"{record.get('stalled')}: round ends",
                     "no_feasible_grasp": f"none of the {cell.grasps_detected} grasps passes the executor's checks "
                                          f"(last: {cell.last_refusal}): round ends"}.get(record["end"])
         if end_line:

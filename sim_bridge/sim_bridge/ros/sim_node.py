@@ -6,9 +6,9 @@ A thin ROS adapter around `sim_world.SimWorld` (see there for the physics):
 
 | name | type | |
 | --- | --- | --- |
-| `depth/image` | sensor_msgs/Image | 32FC1 (m) or 16UC1 (mm), 0 = no return; sensor-data QoS |
-| `depth/camera_info` | sensor_msgs/CameraInfo | pinhole, no distortion; sensor-data QoS |
-| `camera_pose` | geometry_msgs/PoseStamped | T_task_camera (optical frame) in `frame_id`; sensor-data QoS |
+| `depth/image` | sensor_msgs/Image | 32FC1 (m) or 16UC1 (mm), 0 = no return; reliable, keep last 1 (serves best-effort subscribers too) |
+| `depth/camera_info` | sensor_msgs/CameraInfo | pinhole, no distortion; reliable, keep last 1 |
+| `camera_pose` | geometry_msgs/PoseStamped | T_task_camera (optical frame) in `frame_id`; reliable, keep last 1 |
 | `object_states` | gravgrasp_msgs/ObjectStates | ground truth (reliable) |
 | `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion of the arm stand-in |
 | `load_scene` | gravgrasp_msgs/LoadScene | new scene (hand back home) |
@@ -38,7 +38,7 @@ from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMas
 from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
@@ -51,6 +51,8 @@ from ..physics.contact import SimSettings
 from ..world import CameraSettings, RealTimeRunner, SceneConfig, SimFingerPlant, SimWorld, WorldSettings
 
 OVERCURRENT_FAULT = 0x0E  # gFLT: a major fault, the fingers stop until a reset
+
+CAMERA_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 
 
 class SimNode(Node):
@@ -104,9 +106,12 @@ class SimNode(Node):
         self.server = PtyModbusServer(self.emulator, link_path=link or None).start()
         self.runner = RealTimeRunner(self.world, self.finger_plant, real_time_rate=rt).start()
 
-        self.pub_depth = self.create_publisher(Image, "depth/image", qos_profile_sensor_data)
-        self.pub_info = self.create_publisher(CameraInfo, "depth/camera_info", qos_profile_sensor_data)
-        self.pub_pose = self.create_publisher(PoseStamped, "camera_pose", qos_profile_sensor_data)
+        # Reliable (keep last 1): it serves best-effort subscribers as a camera driver does,
+        # and a reliable subscriber (the demo's tsdf node) gets every frame it falls behind
+        # on again. Best effort lost most 1.2 MB frames, in fragments, to a busy receiver.
+        self.pub_depth = self.create_publisher(Image, "depth/image", CAMERA_QOS)
+        self.pub_info = self.create_publisher(CameraInfo, "depth/camera_info", CAMERA_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, "camera_pose", CAMERA_QOS)
         self.pub_states = self.create_publisher(ObjectStates, "object_states", 10)
         self._render_key = None
         self._depth = None
