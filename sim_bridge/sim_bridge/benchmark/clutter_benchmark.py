@@ -140,7 +140,7 @@ def main(argv=None) -> int:
     p.add_argument("--drive", default=None, choices=DRIVES,
                    help="the 2F-85's transmission in the cell (physics.transmission): self_locking holds what it "
                         "gripped as the real one does; backdrivable opens at the grip force (every run before the "
-                        "lock); default: the drive of the run already in --out, else backdrivable")
+                        "lock); default: the drive of the run already in --out, else self_locking")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--report", action="store_true",
                    help="run nothing: write results.md etc. from the rounds finished so far in --out (same "
@@ -203,7 +203,7 @@ def main(argv=None) -> int:
         return 2
     out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
     execution = args.execution or execution_of_run(out) or DEFAULT_EXECUTION
-    drive = args.drive or drive_of_run(out) or "backdrivable"
+    drive = args.drive or drive_of_run(out) or "self_locking"
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
                         hold_s=args.hold_s, shake_m=args.shake_m, time_step_s=args.time_step_s,
                         relaxation_time_s=args.relaxation_time_s, clear_hand=args.clear_hand,

@@ -99,7 +99,7 @@ def run_rescore_task(task: RescoreTask):
 def with_overrides(settings: SimSettings, overrides) -> SimSettings:
     """`settings` with "key=value" overrides (types from the fields' defaults); ValueError
     for an unknown key or a bad value."""
-    from .cli import sim_settings  # the one parser of "key=value" settings
+    from .cli import sim_settings  # lazy: cli imports this module (the one parser of "key=value" settings)
     base = [f"{k}={v}" for k, v in dataclasses.asdict(settings).items() if v is not None]
     return sim_settings(base + list(overrides))
 

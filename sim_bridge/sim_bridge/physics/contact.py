@@ -45,8 +45,8 @@ class SimSettings:
     resistance_window_s: float = 0.02  # momentum window for the resisted force
     # The 2F-85's transmission (physics.transmission): "self_locking" holds what it
     # gripped as the real screw drive does; "backdrivable" is the motor alone (opens at
-    # the grip force), the drive of every label and cell before the lock.
-    drive: str = "backdrivable"
+    # the grip force), the drive of every label and cell before the lock (from_record).
+    drive: str = "self_locking"
     lock_stiffness_nm_per_rad: float = LOCK_STIFFNESS_NM_PER_RAD
     lock_damping_nm_s_per_rad: float = LOCK_DAMPING_NM_S_PER_RAD
 
