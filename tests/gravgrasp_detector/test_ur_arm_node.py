@@ -121,6 +121,23 @@ def test_a_stale_request_is_refused_and_a_late_motion_stopped_by_its_deadline(se
     assert not cut.success and "stopped at the request's deadline" in cut.message, cut.message
 
 
+def test_a_motion_nobody_asked_for_is_stopped_by_the_nodes_state_timer(served):
+    """The node runs URArm.watch() at state_rate_hz: a move the given-up interface sends
+    again after ur_rtde's own reconnect (modelled by a second control interface) is halted
+    and latched without any request."""
+    ur, node = served["ur"], served["node"]
+    move = node.create_client(MoveToPose, "move_to_pose")
+    assert call(move, move_request(0.15, 0.15, 0.25, speed=0.25)).success
+    stale, _ = ur.connect()  # another interface on the controller, as a given-up one
+    start = len(ur.motions)
+    assert stale.moveL(ur.tcp_pose_in([0.0] * 6)[:2] + [0.45, math.pi, 0.0, 0.0], 0.02, 0.5, True)  # flange up 44 mm
+    assert wait_until(lambda: served["arm_node"].arm.latched == "a motion no request asked for", 10), "not latched"
+    assert wait_until(lambda: not ur.motion_running, 2)
+    assert ur.travelled_m(ur.motions[start]) < 0.01
+    refused = call(move, move_request(0.15, 0.15, 0.30, speed=0.25))
+    assert not refused.success and "a motion no request asked for is latched" in refused.message, refused.message
+
+
 def test_emergency_stop_topic_halts_and_latches_until_armed(served):
     ur, node = served["ur"], served["node"]
     move = node.create_client(MoveToPose, "move_to_pose")
