@@ -4,31 +4,28 @@ synthetic results tree: partial results are shown as they are (rounds counted pe
 file are left out and counted, the paired differences are Ours − method per scene, VGN's
 anchor is split by arrangement, and a missing run is one sentence."""
 
-import json
 
 import pytest
 
 from gravgrasp_detector.perception.model_file import file_sha256
 from sim_bridge.benchmark import baselines_figure as bf
+from sim_bridge.benchmark import run_files
 
 SCENES = ("packed_000", "pile_000")
 
 
 def write_round(run, method, kg, scene, successes, attempts, sha, n_objects=5):
-    path = run / "rounds" / method / f"{kg:g}" / f"{scene}.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({
+    run_files.rounds_file(run).put({
         "method": method, "mass_kg": kg, "scene_id": scene, "model_sha256": sha, "n_objects": n_objects,
         "successes": successes, "attempts": [{"success": i < successes} for i in range(attempts)],
-        "left_before_start": [], "fell_off": []}))
+        "left_before_start": [], "fell_off": []})
 
 
 def make_run(root, name):
     run = root / name
-    (run / "scenes").mkdir(parents=True)
+    run.mkdir(parents=True)
     (run / "config.json").write_text("{}")
-    for s in SCENES:
-        (run / "scenes" / f"{s}.json").write_text("{}")
+    run_files.scenes_file(run).put(*({"scene_id": s} for s in SCENES))
     return run
 
 

@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from sim_bridge.benchmark import run_files
 from sim_bridge.benchmark.protocol import Protocol, drive_of, drive_of_run
 from sim_bridge.benchmark.report import write_outputs
 from sim_bridge.benchmark.rounds import run_benchmark
@@ -40,9 +41,7 @@ def test_a_locked_run_refuses_to_resume_backdrivable(tmp_path):
 
 
 def test_the_report_never_pools_rounds_of_two_drives(tmp_path):
-    path = tmp_path / "rounds" / "ours" / "0.1" / "packed_000.json"
-    path.parent.mkdir(parents=True)
-    path.write_text(json.dumps({"model_sha256": "abc", "method": "ours", "mass_kg": 0.1, "scene_id": "packed_000",
-                                "attempts": []}))  # from before the drive was recorded: back-drivable
+    run_files.rounds_file(tmp_path).put({"model_sha256": "abc", "method": "ours", "mass_kg": 0.1,
+                                         "scene_id": "packed_000", "attempts": []})  # before the drive was recorded
     with pytest.raises(ValueError, match="1 rounds .* backdrivable drive .* self_locking: .* never pooled"):
         write_outputs(tmp_path, {"ours": [0.1]}, {"ours": "abc"}, ["packed_000"], [], Protocol(drive="self_locking"), None)

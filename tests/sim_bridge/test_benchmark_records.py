@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from gravgrasp_detector.perception.detection import Grasp
-from sim_bridge.benchmark import clearing, report
+from sim_bridge.benchmark import clearing, report, run_files
 
-RESULTS = pathlib.Path(__file__).resolve().parents[2] / "sim_bridge" / "results" / "heldout_v4" / "rounds"
+RESULTS = run_files.rounds_file(pathlib.Path(__file__).resolve().parents[2] / "sim_bridge" / "results" / "heldout_v4")
 
 
 def test_a_record_keeps_newtons_validness_and_the_rank_key_apart():
@@ -50,8 +50,7 @@ def test_the_report_reads_new_records_and_the_committed_old_ones():
     new = {"score_n": None, "validness": 0.97, "rank_key": 0.97}
     assert report.attempt_scores(new, "binary") == new
     # committed schema-1 rounds: `score` is the validness for binary, newtons for ours
-    binary = json.loads((RESULTS / "binary" / "0.1" / "packed_000.json").read_text())
-    ours = json.loads((RESULTS / "ours" / "0.1" / "packed_000.json").read_text())
+    binary, ours = RESULTS.get("binary", 0.1, "packed_000"), RESULTS.get("ours", 0.1, "packed_000")
     assert binary["schema_version"] == ours["schema_version"] == 1
     a = binary["attempts"][0]
     assert report.attempt_scores(a, binary["target"]) == {"score_n": None, "validness": a["validness"],

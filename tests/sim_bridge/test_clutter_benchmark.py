@@ -15,6 +15,7 @@ from gravgrasp_detector.perception import detection, model_file, networks, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
 from sim_bridge.benchmark import clearing, methods, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
+from sim_bridge.benchmark import run_files
 from sim_bridge.benchmark.methods import gravgrasp as gravgrasp_method
 from sim_bridge.physics.objects import ObjectError
 from made_models import save_test_model
@@ -306,7 +307,7 @@ def test_a_procedural_seed_draws_other_objects_is_recorded_and_a_resume_keeps_it
             "--weights", "0.1", "--workers", "0", "--no-progress", "--execution", "v4"]
     assert cb.main(argv + ["--procedural-seed", "2000"]) == 0
     assert json.loads((out / "config.json").read_text())["procedural_seed"] == 2000
-    scene = json.loads((out / "scenes" / "packed_000.json").read_text())
+    scene = run_files.scenes_file(out).get("packed_000")
     assert [o["source"]["proc_seed"] for o in scene["objects"]] == [2000] * protocol.OBJECTS_PER_SCENE
     assert "objects: procedural (seed 2000)" in (out / "results.md").read_text()
     capsys.readouterr()
@@ -424,7 +425,7 @@ def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeyp
     assert sum(held) == row["successes"]  # every success lifted something in one of the two modes
     assert (out / "sr_cr_vs_weight.png").stat().st_size > 1000
     assert json.loads((out / "comparisons.json").read_text()) == [] and "No comparison with binary" in md
-    scene = json.loads((out / "scenes" / "packed_000.json").read_text())
+    scene = run_files.scenes_file(out).get("packed_000")
     assert [o["source"]["proc_seed"] for o in scene["objects"]] == [protocol.PROCEDURAL_SEED] * protocol.OBJECTS_PER_SCENE
 
     # Finished rounds are not run again.

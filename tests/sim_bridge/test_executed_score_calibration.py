@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from sim_bridge.benchmark import run_files
 from sim_bridge.studies import executed_score_calibration as esc
 
 TRUE_W = (-1.0, 0.08, -0.12)  # intercept, per N of score, per N of weight
@@ -15,6 +16,7 @@ TRUE_W = (-1.0, 0.08, -0.12)  # intercept, per N of score, per N of weight
 
 def write_rounds(folder, sha, n_rounds=400, seed=0):
     rng = np.random.default_rng(seed)
+    records = []
     for i in range(n_rounds):
         mass = (0.1, 0.5, 1.5, 4.0)[i % 4]
         attempts = []
@@ -29,11 +31,9 @@ def write_rounds(folder, sha, n_rounds=400, seed=0):
             held = rng.random() < p
             attempts.append({"outcome": "success" if held else "dropped", "reason": "", "score_n": s,
                              "validness": v, "rank_key": s})
-        d = folder / "rounds" / "ours" / repr(mass)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / f"scene_{i:03d}.json").write_text(json.dumps({
-            "scene_id": f"scene_{i:03d}", "method": "ours", "mass_kg": mass, "model_sha256": sha,
-            "target": "gravity-score", "attempts": attempts}))
+        records.append({"scene_id": f"scene_{i:03d}", "method": "ours", "mass_kg": mass, "model_sha256": sha,
+                        "target": "gravity-score", "attempts": attempts})
+    run_files.rounds_file(folder).put(*records)
 
 
 @pytest.fixture
@@ -79,7 +79,7 @@ def test_bad_inputs_get_one_sentence(tmp_path, model, capsys):
     assert esc.main(["--model", str(tmp_path / "none.pt"), "--results", str(tmp_path), "--out", out]) == 2
     assert "no model file" in capsys.readouterr().err
     assert esc.main(["--model", str(path), "--results", str(tmp_path / "missing"), "--out", out]) == 2
-    assert "has no rounds/ folder" in capsys.readouterr().err
+    assert "has no rounds" in capsys.readouterr().err
     write_rounds(tmp_path / "b", "0" * 64, n_rounds=8)  # no round of this model
     assert esc.main(["--model", str(path), "--results", str(tmp_path / "b"), "--out", out]) == 2
     assert "0 placed attempts" in capsys.readouterr().err

@@ -13,7 +13,7 @@ import pytest
 
 from sim_bridge.benchmark import clutter_benchmark as cb
 from sim_bridge.analysis import paired_run
-from sim_bridge.benchmark import failed_rounds
+from sim_bridge.benchmark import failed_rounds, run_files
 
 REPO = Path(__file__).resolve().parents[2]
 COMMITTED = REPO / "sim_bridge/results/procedural_v4"
@@ -26,16 +26,21 @@ def source(tmp_path):
     """config.json, excluded_objects.json, two scenes and their 0.1 kg rounds of ours,
     binary and ours_expected, as committed."""
     src = tmp_path / "procedural_cut"
-    files = ["config.json", "excluded_objects.json"] + [f"scenes/{s}.json" for s in SCENES]
-    files += [f"rounds/{m}/0.1/{s}.json" for m in ("ours", "binary", "ours_expected") for s in SCENES]
-    for f in files:
-        (src / f).parent.mkdir(parents=True, exist_ok=True)
+    src.mkdir()
+    for f in ("config.json", "excluded_objects.json"):
         shutil.copyfile(COMMITTED / f, src / f)
+    committed_rounds, committed_scenes = run_files.rounds_file(COMMITTED), run_files.scenes_file(COMMITTED)
+    run_files.scenes_file(src).put(*(committed_scenes.get(s) for s in SCENES))
+    run_files.rounds_file(src).put(*(committed_rounds.get(m, 0.1, s)
+                                     for m in ("ours", "binary", "ours_expected") for s in SCENES))
     return src
 
 
 def tree(root: Path) -> dict:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    """{file: bytes} of the run's files, {(method, kg, scene) or scene: record} of its records."""
+    files = {p.name: p.read_bytes() for p in root.glob("*.json")}
+    rounds = {(r["method"], r["mass_kg"], r["scene_id"]): r for r in run_files.rounds_file(root).records()}
+    return {**files, **rounds, **{s["scene_id"]: s for s in run_files.scenes_file(root).records()}}
 
 
 def test_it_copies_the_run_and_the_named_methods_rounds_and_nothing_else(source, tmp_path):
@@ -44,7 +49,7 @@ def test_it_copies_the_run_and_the_named_methods_rounds_and_nothing_else(source,
     copied = tree(out)
     expected = {k: v for k, v in tree(source).items() if "ours_expected" not in k}
     assert copied == expected and counts == {"copied": len(expected), "kept": 0}
-    assert "rounds/ours/0.1/pile_000.json" in copied and "scenes/packed_000.json" in copied
+    assert ("ours", 0.1, "pile_000") in copied and "packed_000" in copied
 
 
 def test_the_benchmark_takes_the_copy_as_its_own_run(source, tmp_path):
@@ -70,7 +75,7 @@ def test_rounds_of_another_model_are_refused_in_one_sentence_and_nothing_is_copi
     with pytest.raises(paired_run.PairedRunError) as e:
         paired_run.prepare(source, out, ["binary", "ours"], models)
     message = str(e.value)
-    assert "rounds/ours was run with another model" in message and str(models / "gravgrasp.pt") in message
+    assert "the rounds of ours were run with another model" in message and str(models / "gravgrasp.pt") in message
     assert "\n" not in message and not out.exists()
     # the command: one line on stderr, exit 2
     assert paired_run.main(["--source", str(source), "--out", str(out), "--methods", "ours",
@@ -88,8 +93,7 @@ def test_a_rerun_keeps_everything_even_after_the_benchmark_has_run_there(source,
     config = json.loads((out / "config.json").read_text())
     config["protocol"].update({"approach_fast_speed_mps": 0.0, "freeze_resting_objects": False})
     (out / "config.json").write_text(json.dumps({**config, "hands": {"vgn": "panda"}, "machines": ["x"]}))
-    (out / "rounds/vgn/0.1").mkdir(parents=True)
-    (out / "rounds/vgn/0.1/packed_000.json").write_text("{}")
+    run_files.rounds_file(out).put({"method": "vgn", "mass_kg": 0.1, "scene_id": "packed_000"})
     before = tree(out)
     assert paired_run.prepare(source, out, ["ours", "binary"], MODELS) == {"copied": 0, "kept": first["copied"]}
     assert tree(out) == before
@@ -98,18 +102,17 @@ def test_a_rerun_keeps_everything_even_after_the_benchmark_has_run_there(source,
 def test_a_directory_holding_another_run_is_refused_not_overwritten(source, tmp_path):
     out = tmp_path / "paired"
     paired_run.prepare(source, out, ["ours"], MODELS)
-    round_file = out / "rounds/ours/0.1/packed_000.json"
-    record = json.loads(round_file.read_text())
-    round_file.write_text(json.dumps({**record, "successes": record["successes"] + 1}))
+    record = run_files.rounds_file(out).get("ours", 0.1, "packed_000")
+    run_files.rounds_file(out).put({**record, "successes": record["successes"] + 1})
     config = json.loads((source / "config.json").read_text())
     (source / "config.json").write_text(json.dumps({**config, "seed": 7}))
-    with pytest.raises(paired_run.PairedRunError, match="differs from its source.*2 such files.*another run"):
+    with pytest.raises(paired_run.PairedRunError, match="differs from its source.*2 such files or records.*another run"):
         paired_run.prepare(source, out, ["ours"], MODELS)
-    assert json.loads(round_file.read_text())["successes"] == record["successes"] + 1
+    assert run_files.rounds_file(out).get("ours", 0.1, "packed_000")["successes"] == record["successes"] + 1
 
 
 def test_missing_rounds_are_a_note_and_failed_rounds_come_along(source, tmp_path):
-    sha = json.loads((source / "rounds/ours/0.1/packed_000.json").read_text())["model_sha256"]
+    sha = run_files.rounds_file(source).get("ours", 0.1, "packed_000")["model_sha256"]
     failed_rounds.save(source, {failed_rounds.key("ours", 0.1, "pile_001"):
                                 failed_rounds.record("ours", 0.1, "pile_001", sha, "RuntimeError: x", "m")})
     notes, out = [], tmp_path / "paired"

@@ -11,6 +11,7 @@ from gravgrasp_detector.perception.detection import Grasp
 from gravgrasp_detector.perception.tsdf import TSDFVolume
 from sim_bridge.studies import refusal_study as study
 from sim_bridge.benchmark.protocol import Protocol
+from sim_bridge.benchmark import run_files
 from sim_bridge.benchmark.rounds import RoundTask
 from sim_bridge.benchmark.sim_cell import SimCell
 from sim_bridge.datagen.object_sources import ObjectSource
@@ -95,22 +96,21 @@ def test_summary_bins_refusals_by_voxel_count_beside_the_benchmarks_pick():
 @pytest.fixture
 def bench(tmp_path):
     d = tmp_path / "bench"
-    (d / "scenes").mkdir(parents=True)
+    d.mkdir(parents=True)
     (d / "config.json").write_text(json.dumps({"protocol": dataclasses.asdict(Protocol())}))
-    (d / "scenes" / "packed_000.json").write_text(json.dumps({"scene_id": "packed_000", "objects": []}))
+    run_files.scenes_file(d).put({"scene_id": "packed_000", "objects": []})
     model = tmp_path / "model.pt"
     model.write_bytes(b"not read: the scene's record is already there")
     return d, model
 
 
-def test_main_resumes_from_the_scene_files_and_prints_the_refused_success_fraction(bench, tmp_path, capsys):
+def test_main_resumes_from_its_records_and_prints_the_refused_success_fraction(bench, tmp_path, capsys):
     d, model = bench
     out = tmp_path / "out"
-    (out / "scenes").mkdir(parents=True)
     sha = study.file_sha256(model)
-    (out / "scenes" / "packed_000_1.5.json").write_text(json.dumps(
-        {"model_sha256": sha, "top": 5, **scene_record(1.5, [refused(2, "success"), refused(2, "jammed_on_approach"),
-                                                              refused(30, "jammed_on_approach")])}))
+    study.records_file(out).put(
+        {"model_sha256": sha, "top": 5, "scene_id": "packed_000",
+         **scene_record(1.5, [refused(2, "success"), refused(2, "jammed_on_approach"), refused(30, "jammed_on_approach")])})
     assert study.main(["--bench", str(d), "--model", str(model), "--out", str(out)]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1] == "refused_success_fraction=0.333"
     summary = json.loads((out / "summary.json").read_text())

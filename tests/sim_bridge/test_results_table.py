@@ -6,7 +6,7 @@ import json
 import re
 from pathlib import Path
 
-from sim_bridge.benchmark import results_table
+from sim_bridge.benchmark import results_table, run_files
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -65,6 +65,6 @@ def test_the_tabled_runs_are_the_shipped_models():
     for _, run in results_table.RUNS:
         for method, model in shipped.items():
             sha = hashlib.sha256((ROOT / "models" / model).read_bytes()).hexdigest()
-            rounds = list((ROOT / run / "rounds" / method).rglob("*.json"))
-            assert rounds and all(json.loads(p.read_text())["model_sha256"] == sha for p in rounds), \
+            rounds = [r for r in run_files.rounds_file(ROOT / run).records() if r["method"] == method]
+            assert rounds and all(r["model_sha256"] == sha for r in rounds), \
                 f"{run}'s {method} rounds were not run with the shipped models/{model}"

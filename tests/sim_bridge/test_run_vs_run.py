@@ -3,14 +3,13 @@
 import json
 
 from sim_bridge.analysis import run_vs_run
+from sim_bridge.benchmark import run_files
 
 
 def write_run(run, rounds, scenes=("packed_000", "pile_000")):
-    """A run directory as the benchmark's --report leaves it: scenes/ and attempts.json.
+    """A run directory as the benchmark's --report leaves it: scenes.jsonl and attempts.json.
     rounds: [(method, kg, scene_id, [outcome...], end)]."""
-    (run / "scenes").mkdir(parents=True)
-    for sid in scenes:
-        (run / "scenes" / f"{sid}.json").write_text(json.dumps({"scene_id": sid, "objects": [sid]}))
+    run_files.scenes_file(run).put(*({"scene_id": sid, "objects": [sid]} for sid in scenes))
     attempts, records = [], []
     for method, kg, sid, outcomes, end in rounds:
         records.append({"method": method, "mass_kg": kg, "scene_id": sid, "end": end, "n_objects": 5, "fell_off": [],
@@ -37,9 +36,9 @@ def test_a_method_is_paired_per_scene_across_the_runs_with_its_losses_before_the
 def test_runs_of_other_scenes_are_refused_with_one_message(tmp_path, capsys):
     write_run(tmp_path / "base", [("ours", 0.1, "packed_000", ["success"], "table_clear")])
     write_run(tmp_path / "other", [("ours", 0.1, "packed_000", ["success"], "table_clear")])
-    (tmp_path / "other" / "scenes" / "packed_000.json").write_text(json.dumps({"objects": ["else"]}))
+    run_files.scenes_file(tmp_path / "other").put({"scene_id": "packed_000", "objects": ["else"]})
     assert run_vs_run.main([str(tmp_path / "base"), str(tmp_path / "other")]) == 2
-    assert "packed_000.json differs" in capsys.readouterr().err
+    assert "scene packed_000 differs" in capsys.readouterr().err
     write_run(tmp_path / "elsewhere", [], scenes=("pile_009",))
     assert run_vs_run.main([str(tmp_path / "base"), str(tmp_path / "elsewhere")]) == 2
     assert "share no scene" in capsys.readouterr().err

@@ -33,6 +33,7 @@ import trimesh
 from gravgrasp_detector.perception.detection import CLOSING_REGION_TCP, surface_voxel_centres
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from ..benchmark import run_files
 from ..benchmark.clearing import clear_table
 from ..benchmark.methods import METHODS
 from ..benchmark.protocol import Protocol, weight_key
@@ -93,10 +94,11 @@ class SurfaceSamples:
 
 def recorded_round(results_dir, method, mass_kg, scene_id) -> dict:
     """A committed round's record; ValueError (one line) where the run has none."""
-    round_file = pathlib.Path(results_dir) / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json"
-    if not round_file.is_file():
-        raise ValueError(f"no round {round_file}: see {round_file.parents[2]} for the methods, weights and scenes run")
-    return json.loads(round_file.read_text())
+    recorded = run_files.rounds_file(results_dir).get(method, mass_kg, scene_id)
+    if recorded is None:
+        raise ValueError(f"no round of {method} at {weight_key(mass_kg)} kg on {scene_id} in {results_dir}: see its "
+                         f"{run_files.ROUNDS} for the methods, weights and scenes run")
+    return recorded
 
 
 def rebuild_cell(results_dir, recorded, model_path) -> tuple:
@@ -109,7 +111,7 @@ def rebuild_cell(results_dir, recorded, model_path) -> tuple:
                          f"{recorded['mass_kg']} kg {recorded['scene_id']}, sha256 {recorded['model_sha256'][:12]}…): "
                          "pass --model with that file, e.g. from `git log -- models/` and `git show COMMIT:PATH`")
     config = json.loads((results_dir / "config.json").read_text())
-    scene = json.loads((results_dir / "scenes" / f"{recorded['scene_id']}.json").read_text())
+    scene = run_files.scenes_file(results_dir).get(recorded["scene_id"])
     protocol = Protocol(**config["protocol"])
     torch.set_num_threads(1)
     cell, _ = make_cell(RoundTask(recorded["method"], str(model_path), recorded["model_sha256"],

@@ -18,6 +18,7 @@ import json
 import pathlib
 import sys
 
+from ..benchmark import run_files
 from ..benchmark.paired import compare_paired
 from ..benchmark.protocol import weight_key
 from ..benchmark.report import before_lift_losses
@@ -39,15 +40,16 @@ def load_rounds(run_dir) -> list:
 
 def check_same_scenes(base_dir, lever_dir) -> int:
     """How many scenes the runs share; ValueError if a shared one differs."""
-    base, lever = pathlib.Path(base_dir) / "scenes", pathlib.Path(lever_dir) / "scenes"
-    shared = sorted({p.name for p in base.glob("*.json")} & {p.name for p in lever.glob("*.json")})
+    base = {s["scene_id"]: s for s in run_files.scenes_file(base_dir).records()}
+    lever = {s["scene_id"]: s for s in run_files.scenes_file(lever_dir).records()}
+    shared = sorted(base.keys() & lever.keys())
     if not shared:
         raise ValueError(f"{base_dir} and {lever_dir} share no scene: run the lever on the base run's scenes "
-                         "(copy its scenes/ into the lever run first)")
+                         f"(copy its {run_files.SCENES} into the lever run first)")
     for name in shared:
-        if json.loads((base / name).read_text()) != json.loads((lever / name).read_text()):
+        if base[name] != lever[name]:
             raise ValueError(f"scene {name} differs between {base_dir} and {lever_dir}: not the same scenes, "
-                             "so not a paired comparison (copy the base run's scenes/ into the lever run first)")
+                             "so not a paired comparison (copy the base run's scenes.jsonl into the lever run first)")
     return len(shared)
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import math
 import pathlib
 import sys
@@ -25,9 +24,9 @@ import sys
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from . import run_files
 from .methods import METHODS, MethodFileMissing
 from .paired import compare_paired
-from .protocol import weight_key
 from .report import summarize
 
 RUNS = (("held-out meshes", "sim_bridge/results/baselines_heldout"),
@@ -69,16 +68,18 @@ def load_run(run_dir, models_dir="models", baselines_dir=None) -> dict:
     "scenes": the run's scene count, "stale": rounds of other files, left out}."""
     run_dir = pathlib.Path(run_dir)
     rounds, stale = [], 0
+    ran = run_files.rounds_file(run_dir).records()
     for method, _ in FIGURE_METHODS:
         sha = current_sha(method, models_dir, baselines_dir)
         for w in WEIGHTS_KG:
-            for path in sorted((run_dir / "rounds" / method / weight_key(w)).glob("*.json")):
-                r = json.loads(path.read_text())
+            for r in ran:
+                if r["method"] != method or float(r["mass_kg"]) != float(w):
+                    continue
                 if sha is None or r.get("model_sha256") == sha:
                     rounds.append(r)
                 else:
                     stale += 1
-    scenes = len(list((run_dir / "scenes").glob("*.json")))
+    scenes = len(run_files.scenes_file(run_dir))
     return {"rounds": rounds, "scenes": scenes or len({r["scene_id"] for r in rounds}), "stale": stale}
 
 

@@ -22,6 +22,7 @@ import sys
 from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..parallel import make_executor, run_tasks
+from . import run_files
 from .methods import method_named
 from .protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
 from .rounds import RoundTask, run_round
@@ -41,7 +42,7 @@ def tasks(settings: str, rounds=ROUNDS, models_dir="models") -> list:
     for results_dir, method, mass_kg, sid in rounds:
         d = pathlib.Path(results_dir)
         config = json.loads((d / "config.json").read_text())
-        scene = json.loads((d / "scenes" / f"{sid}.json").read_text())
+        scene = run_files.scenes_file(d).get(sid)
         model = method_named(method).default_path(models_dir)
         for name in ("v4", settings):
             protocol = with_execution(Protocol(**config["protocol"]), name)

@@ -4,7 +4,7 @@ the grasp executor run in-process, in simulated time.
 
 Protocol (one *round* = one method, one object weight, one scene):
 - Scenes: 5 objects, `packed` and `pile` in turn, drawn and arranged once per scene
-  from a seed derived from the master seed (scenes/<id>.json), so every method and
+  from a seed derived from the master seed (scenes.jsonl), so every method and
   weight clears the same scenes. Every object of a round gets the round's weight.
 - Objects: procedural primitives with procedural seed 1000 by default (training uses
   seed 0: disjoint; `--procedural-seed N` draws others, e.g. 2000 for a confirmation run on
@@ -49,8 +49,8 @@ success probability) and no min-score-in-N threshold applies to it. Each round r
 names its method's hand, as config.json does ("hands").
 
 Engineering: one task per round through parallel.run_tasks (process pool or Dask);
-each round's result is written atomically to rounds/<method>/<weight>/<scene>.json
-with the model file's sha256, so a rerun skips finished rounds (and redoes those of a
+each round's result goes into the run's rounds.jsonl (benchmark.run_files, rewritten
+atomically) with the model file's sha256, so a rerun skips finished rounds (and redoes those of a
 retrained model); everything runs in simulated time, so a seed gives the same attempts.
 A round Drake cannot simulate (a RuntimeError) fails the same way every time: it is
 recorded once in failed_rounds.json, listed in results.md and not rerun

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
 import math
 import os
 
@@ -15,11 +14,10 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.execution.executor import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
-from . import failed_rounds
+from . import failed_rounds, run_files
 from .clearing import success_rates
 from .paired import compare_paired
-from .protocol import (OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, drive_of, execution_name, execution_of,
-                       weight_key)
+from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, drive_of, execution_name, execution_of
 
 # statistics
 
@@ -93,14 +91,13 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     on disk; `failed`: failed_rounds.load's records (listed, not counted); `procedural_seed`:
     the run's (config.json), named in the header."""
     rounds = []
+    ran = run_files.rounds_file(out)
     for method, weights_kg in plan.items():
         for w in weights_kg:
             for sid in ids:
-                p = out / "rounds" / method / weight_key(w) / f"{sid}.json"
-                if p.exists():
-                    r = json.loads(p.read_text())
-                    if r.get("model_sha256") == shas[method]:
-                        rounds.append(r)
+                r = ran.get(method, w, sid)
+                if r is not None and r.get("model_sha256") == shas[method]:
+                    rounds.append(r)
     drifted = [r for r in rounds if drive_of(r) != protocol.drive]
     if drifted:
         r = drifted[0]

@@ -1,6 +1,6 @@
 """One benchmark round as a worker task (the method's detector and hand, `run_round`) and
-the run over methods x weights x scenes (`run_benchmark`): resumable, one atomic JSON per
-round. The methods are benchmark.methods.METHODS."""
+the run over methods x weights x scenes (`run_benchmark`): resumable, its rounds and scenes
+kept in rounds.jsonl and scenes.jsonl (run_files). The methods are benchmark.methods.METHODS."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from gravgrasp_detector.perception.model_file import file_sha256
 from gravgrasp_detector import atomic_files
 from ..parallel import make_executor, run_tasks, task_seed
 from ..world import WorldSettings
-from . import failed_rounds
+from . import failed_rounds, run_files
 from .clearing import clear_table
 from .machine import machine_name
 from .methods import PROVIDERS, MethodFileMissing, method_named, method_of
@@ -111,13 +111,9 @@ def method_weights(method, weights_kg, ablation_weights_kg=None) -> list:
 def unreported_rounds(out, plan: dict) -> list:
     """'method at W kg' for each method and weight with rounds in the run `out` that `plan`
     ({method: [kg]}) does not name: a report for the plan rewrites the run's summaries without them."""
-    left_out = []
-    for weight_dir in sorted((pathlib.Path(out) / "rounds").glob("*/*")):
-        method, kg = weight_dir.parent.name, weight_dir.name
-        named = method in plan and kg in {weight_key(w) for w in plan[method]}
-        if not named and any(weight_dir.glob("*.json")):
-            left_out.append(f"{method} at {kg} kg")
-    return left_out
+    ran = sorted({(r["method"], float(r["mass_kg"])) for r in run_files.rounds_file(out).records()})
+    return [f"{method} at {weight_key(kg)} kg" for method, kg in ran
+            if not (method in plan and kg in {float(w) for w in plan[method]})]
 
 
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
@@ -195,28 +191,24 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
 
     usable, excluded = object_pool(meshes_dir, only=only, procedural_seed=config["procedural_seed"])
     atomic_files.save_json(out / "excluded_objects.json", list(excluded))
+    scene_file, round_file = run_files.scenes_file(out), run_files.rounds_file(out)
     scenes, pending = {}, []
     for sid in ids:
-        path = out / "scenes" / f"{sid}.json"
-        if path.exists():
-            scenes[sid] = json.loads(path.read_text())
+        scene = scene_file.get(sid)
+        if scene is not None:
+            scenes[sid] = scene
         else:
             pending.append(SceneDrawTask(sid, task_seed(seed, "scene", sid), tuple(usable)))
 
-    rounds_dir = out / "rounds"
-
-    def round_path(method, mass_kg, sid):
-        return rounds_dir / method / weight_key(mass_kg) / f"{sid}.json"
-
     def done(method, w, sid):
-        rp = round_path(method, w, sid)
-        if rp.exists() and json.loads(rp.read_text()).get("model_sha256") == shas[method]:
+        r = round_file.get(method, w, sid)
+        if r is not None and r.get("model_sha256") == shas[method]:
             return True
         gave_up = failed.get(failed_rounds.key(method, w, sid), {}).get("model_sha256") == shas[method]
         return gave_up and not retry_failed
 
     def on_scene(task, scene):
-        atomic_files.save_json(out / "scenes" / f"{task.scene_id}.json", scene)
+        scene_file.put(scene)
         scenes[task.scene_id] = scene
 
     def on_round(task, result):
@@ -227,7 +219,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
                 failed[k] = failed_rounds.record(*k, task.model_sha256, result["error"], machine_name())
                 failed_rounds.save(out, failed)
         else:
-            atomic_files.save_json(round_path(task.method, task.mass_kg, task.scene["scene_id"]), result)
+            round_file.put(result)
             if failed.pop(k, None) is not None:  # retried, and it ran this time
                 failed_rounds.save(out, failed)
 

@@ -21,8 +21,8 @@ round end is diagnosed (its final view's top grasp) only when the whole round re
         --methods ours,binary --weights 0.1,0.5,1.5 --out sim_bridge/results/before_lift_diagnosis
     python -m sim_bridge.studies.before_lift_diagnosis --out sim_bridge/results/before_lift_diagnosis --report
 
-One JSON per round under --out/rounds/<results>/<method>/<kg>/<scene>.json (a rerun
-skips those there); --report prints the Markdown table, the summary by surface class and
+One JSON line per round in --out/rounds.jsonl, by results, method, weight and scene (a
+rerun skips those there); --report prints the Markdown table, the summary by surface class and
 by lever (LEVERS: the rule each applies), and last `diagnosed=N of M`. The replay needs
 the rounds' model files (their sha256 is checked; --model NAME=PATH for another copy).
 """
@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import pathlib
 import re
 import sys
@@ -39,10 +38,9 @@ import time
 
 import numpy as np
 
-from gravgrasp_detector import atomic_files
-
 from ..analysis import pick_diagnosis
 from ..analysis.replay import SurfaceSamples, closing_region_contents, rebuild_cell, recorded_round
+from ..benchmark import run_files
 from ..benchmark.clearing import clear_table
 from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.methods import METHODS
@@ -337,17 +335,21 @@ def report_lines(records: list) -> list:
 # the command
 
 
-def round_files(results_dir, methods, weights, scenes=()):
-    """(method, kg, round file) of a benchmark run's rounds, only of `scenes` where given;
+STUDY_KEY = ("results", "method", "mass_kg", "scene_id")  # a study record: which run's round it looked at
+
+
+def benchmark_rounds(results_dir, methods, weights, scenes=()):
+    """(method, kg, round record) of a benchmark run's rounds, only of `scenes` where given;
     ValueError where a method has no rounds at a weight."""
+    ran = run_files.rounds_file(results_dir).records()
     for method in methods:
         for kg in weights:
-            folder = pathlib.Path(results_dir) / "rounds" / method / weight_key(kg)
-            if not folder.is_dir():
-                raise ValueError(f"no rounds in {folder}: see {pathlib.Path(results_dir) / 'rounds'}")
-            for f in sorted(folder.glob("*.json")):
-                if not scenes or f.stem in scenes:
-                    yield method, kg, f
+            found = [r for r in ran if r["method"] == method and float(r["mass_kg"]) == float(kg)]
+            if not found:
+                raise ValueError(f"no rounds of {method} at {weight_key(kg)} kg in {results_dir}")
+            for r in found:
+                if not scenes or r["scene_id"] in scenes:
+                    yield method, kg, r
 
 
 def main(argv=None) -> int:
@@ -365,9 +367,9 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     out = pathlib.Path(args.out)
     if args.report:
-        records = [json.loads(f.read_text()) for f in sorted((out / "rounds").rglob("*.json"))]
+        records = run_files.study_rounds_file(out, STUDY_KEY).records()
         if not records:
-            print(f"before_lift_diagnosis: nothing under {out / 'rounds'}: run without --report first", file=sys.stderr)
+            print(f"before_lift_diagnosis: no rounds in {out}: run without --report first", file=sys.stderr)
             return 2
         print("\n".join(report_lines(records)))
         return 0
@@ -389,20 +391,22 @@ def main(argv=None) -> int:
         weights = parse_weights(args.weights)
         scenes = {s for s in args.scenes.split(",") if s}
         rounds = 0
+        done = run_files.study_rounds_file(out, STUDY_KEY)
         for results in args.results or ["sim_bridge/results/heldout_v4"]:
-            for method, kg, f in round_files(results, methods, weights, scenes):
-                if not find_failures(json.loads(f.read_text())):
+            for method, kg, recorded in benchmark_rounds(results, methods, weights, scenes):
+                if not find_failures(recorded):
                     continue
                 if args.max_rounds is not None and rounds >= args.max_rounds:
                     break
                 rounds += 1
-                target = out / "rounds" / pathlib.Path(results).name / method / weight_key(kg) / f.name
-                if target.is_file():
+                sid = recorded["scene_id"]
+                if done.get(pathlib.Path(results).name, method, kg, sid) is not None:
                     continue
-                record = diagnose_round(results, method, kg, f.stem, paths)
-                atomic_files.save_json(target, record)
+                record = diagnose_round(results, method, kg, sid, paths)
+                done.put(record)
                 n = sum("diagnosis" in x for x in record["failures"])
-                print(f"{target}: {n} of {len(record['failures'])} failures diagnosed, "
+                print(f"{pathlib.Path(results).name} {method} {weight_key(kg)} kg {sid}: {n} of "
+                      f"{len(record['failures'])} failures diagnosed, "
                       f"replayed {record['replayed']} attempts in {record['cpu_s']} s CPU", flush=True)
     except ValueError as e:
         print(f"before_lift_diagnosis: {e}", file=sys.stderr)

@@ -37,6 +37,7 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from ..benchmark import run_files
 from ..benchmark.report import AFTER_LIFT, attempt_scores, outcome_class, wilson_interval
 
 G_MPS2 = 9.81
@@ -55,11 +56,10 @@ def load_attempts(results_dirs, model_sha256: str) -> list:
     score_n, validness, outcome}. Rounds copied between directories count once."""
     rows, seen = [], set()
     for d in results_dirs:
-        folder = pathlib.Path(d) / "rounds"
-        if not folder.is_dir():
-            raise ValueError(f"{d} has no rounds/ folder: give a benchmark output directory (--out of the benchmark)")
-        for f in sorted(folder.rglob("*.json")):
-            r = json.loads(f.read_text())
+        ran = run_files.rounds_file(d)
+        if not len(ran):
+            raise ValueError(f"{d} has no rounds: give a benchmark output directory (--out of the benchmark)")
+        for r in ran.records():
             if r.get("model_sha256") != model_sha256 or "attempts" not in r:
                 continue
             key = (r["scene_id"], r["method"], float(r["mass_kg"]), json.dumps(r["attempts"], sort_keys=True))

@@ -42,6 +42,7 @@ import torch
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from ..benchmark import run_files
 from ..benchmark.clearing import Refused, clear_table
 from ..benchmark.methods import method_named
 from ..benchmark.protocol import EXECUTION_SETTINGS, Protocol, weight_key, with_execution
@@ -171,13 +172,13 @@ def plan(rounds=DEFAULT_ROUNDS, settings=STUDIED, models_dir="models", methods=N
         config = json.loads((d / "config.json").read_text())
         model = method_named(method).default_path(models_dir)
         sha = file_sha256(model)
-        rf = d / "rounds" / method / weight_key(mass_kg) / f"{sid}.json"
-        if not rf.is_file():
-            raise ValueError(f"no committed round {rf}")
-        rec = json.loads(rf.read_text())
+        rec = run_files.rounds_file(d).get(method, mass_kg, sid)
+        rf = f"{d}'s round of {method} at {weight_key(mass_kg)} kg on {sid}"
+        if rec is None:
+            raise ValueError(f"no committed round: {rf}")
         if rec["model_sha256"] != sha:
-            raise ValueError(f"{model} is not the model {rf} ran (sha256 {rec['model_sha256'][:12]}…)")
-        scene = json.loads((d / "scenes" / f"{sid}.json").read_text())
+            raise ValueError(f"{model} is not the model of {rf} (sha256 {rec['model_sha256'][:12]}…)")
+        scene = run_files.scenes_file(d).get(sid)
         task = RoundTask(method, str(model), sha, float(mass_kg), scene, round_protocol(config))
         out.append(StudyRound(str(d), task, tuple(a["outcome"] for a in rec["attempts"]), tuple(settings)))
     return out
@@ -259,22 +260,23 @@ def main(argv=None) -> int:
         print(f"execution_settings_study: {e}", file=sys.stderr)
         return 2
     out = pathlib.Path(args.out)
+    studied = run_files.study_rounds_file(out, run_files.ROUND_KEY)
 
-    def path(sr):
-        return out / "rounds" / sr.task.method / weight_key(sr.task.mass_kg) / f"{sr.task.scene['scene_id']}.json"
+    def record_of(sr):
+        return studied.get(sr.task.method, sr.task.mass_kg, sr.task.scene["scene_id"])
 
     def on_result(sr, result):
         if "error" in result:
             print(f"execution_settings_study: {sr.task.method} {sr.task.mass_kg} kg "
                   f"{sr.task.scene['scene_id']} failed: {result['error']}", file=sys.stderr)
         else:
-            atomic_files.save_json(path(sr), result)
+            studied.put(result)
 
-    pending = [] if args.report else [sr for sr in rounds if not path(sr).exists()]
+    pending = [] if args.report else [sr for sr in rounds if record_of(sr) is None]
     if pending:
         with make_executor(args.workers) as ex:
             run_tasks(ex, _guarded, pending, on_result, desc="rounds", progress=not args.no_progress)
-    records = [json.loads(path(sr).read_text()) for sr in rounds if path(sr).exists()]
+    records = [record_of(sr) for sr in rounds if record_of(sr) is not None]
     summary = summarize(records, settings)
     atomic_files.save_json(out.parent / f"{out.name}.json", summary)
     print(markdown(summary))

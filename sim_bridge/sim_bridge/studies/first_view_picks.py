@@ -27,30 +27,28 @@ lift against 2 of its 62 first ones (studies.before_lift_split; sim_bridge/doc/l
         --method binary --weights 1.5 --compare binary_scored,ours --out sim_bridge/results/first_view_binary_scored
     python -m sim_bridge.studies.first_view_picks --out sim_bridge/results/free_space_mask_first_view --report
 
-One JSON per round under --out/rounds/<results>/<method>/<kg>/<scene>.json (a rerun skips
-those there); --report prints the counts by the first attempt's outcome.
+One JSON line per round in --out/rounds.jsonl, by results, method, weight and scene (a
+rerun skips those there); --report prints the counts by the first attempt's outcome.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
-import json
 import pathlib
 import sys
 import time
 
 import numpy as np
 
-from gravgrasp_detector import atomic_files
-
 from ..analysis import pick_diagnosis
 from ..analysis.replay import SurfaceSamples, rebuild_cell, recorded_round
+from ..benchmark import run_files
 from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.methods import METHODS
 from ..benchmark.protocol import weight_key
 from ..benchmark.report import outcome_class
-from .before_lift_diagnosis import FAILURES, diagnose_view, round_files
+from .before_lift_diagnosis import FAILURES, STUDY_KEY, benchmark_rounds, diagnose_view
 from .detection_levers import VGN_MASKS, lever_detector
 
 MASKS = tuple(VGN_MASKS)
@@ -223,10 +221,9 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     out = pathlib.Path(args.out)
     if args.report:
-        records = [json.loads(f.read_text()) for f in sorted((out / "rounds").rglob("*.json"))]
+        records = run_files.study_rounds_file(out, STUDY_KEY).records()
         if not records:
-            print(f"first_view_picks: nothing under {out / 'rounds'}: run without --report first",
-                  file=sys.stderr)
+            print(f"first_view_picks: no rounds in {out}: run without --report first", file=sys.stderr)
             return 2
         print("\n".join(report_lines(records)))
         return 0
@@ -238,14 +235,16 @@ def main(argv=None) -> int:
         model = pathlib.Path(args.model) if args.model else METHODS[args.method].default_path()
         if not model.is_file():
             raise ValueError(f"model file {model} not found: pass --model PATH")
+        done = run_files.study_rounds_file(out, STUDY_KEY)
         for results in args.results or ["sim_bridge/results/heldout_v4"]:
-            for method, kg, f in round_files(results, [args.method], parse_weights(args.weights)):
-                target = out / "rounds" / pathlib.Path(results).name / method / weight_key(kg) / f.name
-                if target.is_file():
+            for method, kg, recorded in benchmark_rounds(results, [args.method], parse_weights(args.weights)):
+                sid = recorded["scene_id"]
+                if done.get(pathlib.Path(results).name, method, kg, sid) is not None:
                     continue
-                record = first_view(results, method, kg, f.stem, model, compare)
-                atomic_files.save_json(target, record)
-                print(f"{target}: first attempt {record['outcome']}, repeated {record.get('same_pose')}, "
+                record = first_view(results, method, kg, sid, model, compare)
+                done.put(record)
+                print(f"{pathlib.Path(results).name} {method} {weight_key(kg)} kg {sid}: first attempt "
+                      f"{record['outcome']}, repeated {record.get('same_pose')}, "
                       f"{record['cpu_s']} s CPU", flush=True)
     except ValueError as e:
         print(f"first_view_picks: {e}", file=sys.stderr)

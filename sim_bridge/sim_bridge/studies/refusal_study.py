@@ -42,6 +42,7 @@ from gravgrasp_detector.execution.executor import plan_poses
 from gravgrasp_detector.perception.hand_clearance import collisions
 from gravgrasp_detector.perception.model_file import file_sha256
 
+from ..benchmark import run_files
 from ..benchmark.clearing import Refused, grasp_fields
 from ..benchmark.clutter_benchmark import parse_weights
 from ..benchmark.methods import METHODS
@@ -177,16 +178,22 @@ def summary_lines(summary: dict) -> list:
 
 def baseline_of(bench: pathlib.Path, method: str, sha: str, mass_kg: float, scene_id: str):
     """The benchmark round's first attempt if that round ran this model and made one."""
-    path = bench / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json"
-    if not path.exists():
+    r = run_files.rounds_file(bench).get(method, mass_kg, scene_id)
+    if r is None:
         return None
-    r = json.loads(path.read_text())
     return r["attempts"][0] if r.get("model_sha256") == sha and r["attempts"] else None
+
+
+def records_file(out) -> run_files.RecordFile:
+    """The study's records in `out`, one per scene and weight: rounds.jsonl (older runs:
+    scenes/<scene>_<kg>.json)."""
+    out = pathlib.Path(out)
+    return run_files.RecordFile(out / run_files.ROUNDS, ("scene_id", "mass_kg"), out / "scenes")
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--bench", required=True, help="a benchmark's --out directory (its config.json, scenes/ and rounds/)")
+    p.add_argument("--bench", required=True, help="a benchmark's --out directory (its config.json, scenes and rounds)")
     p.add_argument("--method", default="ours", help="the benchmark method whose detection is studied")
     p.add_argument("--model", default=None, help="its model file (default: models/ by the benchmark's name)")
     p.add_argument("--weights", default="1.5", help="comma-separated object weights [kg]")
@@ -203,8 +210,9 @@ def main(argv=None) -> int:
         return err(f"--{e}")
     if args.top < 1:
         return err(f"--top {args.top}: give at least 1")
-    if not (bench / "config.json").is_file() or not sorted((bench / "scenes").glob("*.json")):
-        return err(f"{bench} holds no benchmark run (config.json and scenes/*.json): give a benchmark's --out")
+    scenes = run_files.scenes_file(bench).records()
+    if not (bench / "config.json").is_file() or not scenes:
+        return err(f"{bench} holds no benchmark run (config.json and its scenes): give a benchmark's --out")
     if args.method not in METHODS:
         return err(f"unknown --method {args.method!r}: use {', '.join(METHODS)}")
     model = pathlib.Path(args.model or METHODS[args.method].default_path())
@@ -212,18 +220,18 @@ def main(argv=None) -> int:
         return err(f"model file {model} not found: give --model")
     protocol = Protocol(**json.loads((bench / "config.json").read_text())["protocol"])
     sha = file_sha256(model)
-    scenes = [json.loads(f.read_text()) for f in sorted((bench / "scenes").glob("*.json"))]
     out = pathlib.Path(args.out)
-    (out / "scenes").mkdir(parents=True, exist_ok=True)
-    atomic_files.remove_stale_temporaries(out / "scenes")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_files.remove_stale_temporaries(out)
+    studied = records_file(out)
 
-    def path_of(t: SceneTask):
-        return out / "scenes" / f"{t.round.scene['scene_id']}_{weight_key(t.round.mass_kg)}.json"
+    def record_of(t: SceneTask):
+        return studied.get(t.round.scene["scene_id"], t.round.mass_kg)
 
     tasks = [SceneTask(RoundTask(args.method, str(model.resolve()), sha, w, s, protocol), args.top,
                        baseline_of(bench, args.method, sha, w, s["scene_id"])) for w in weights for s in scenes]
     def done(t):  # a record of another model or --top is redone
-        return path_of(t).exists() and {k: json.loads(path_of(t).read_text()).get(k) for k in ("model_sha256", "top")} \
+        return record_of(t) is not None and {k: record_of(t).get(k) for k in ("model_sha256", "top")} \
             == {"model_sha256": sha, "top": args.top}
 
     pending = [t for t in tasks if not done(t)]
@@ -231,16 +239,16 @@ def main(argv=None) -> int:
 
     def on_result(task, result):
         if "error" in result:
-            errors.append(f"{path_of(task).stem}: {result['error']}")
+            errors.append(f"{task.round.scene['scene_id']} at {weight_key(task.round.mass_kg)} kg: {result['error']}")
         else:
-            atomic_files.save_json(path_of(task), {"model_sha256": sha, "top": args.top, **result})
+            studied.put({"model_sha256": sha, "top": args.top, **result})
 
     if pending:
         with make_executor(args.workers) as ex:
             run_tasks(ex, _guarded, pending, on_result, desc="scenes", progress=not args.no_progress)
     for e in errors:
         print(f"refusal_study: {e}", file=sys.stderr)
-    records = [json.loads(path_of(t).read_text()) for t in tasks if done(t)]
+    records = [record_of(t) for t in tasks if done(t)]
     summary = summarize(records)
     atomic_files.save_json(out / "summary.json", {"bench": str(bench), "method": args.method, "model_sha256": sha,
                                                   "top": args.top, "weights_kg": weights, "summary": summary})

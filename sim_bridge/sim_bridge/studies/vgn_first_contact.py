@@ -38,8 +38,9 @@ from gravgrasp_detector.perception.model_file import file_sha256
 
 from ..analysis import pick_diagnosis
 from ..analysis.replay import SurfaceSamples
+from ..benchmark import run_files
 from ..benchmark.methods import METHODS, vgn
-from ..benchmark.protocol import Protocol, weight_key
+from ..benchmark.protocol import Protocol
 from ..benchmark.rounds import RoundTask, make_cell
 from ..physics import panda_hand
 from ..physics.depth_rendering import render_depth
@@ -67,13 +68,15 @@ def first_view(results_dir, method: str, mass_kg: float, scene_id: str, model_pa
     round's protocol (close where the contact stop halted it, if that short or less: what
     VGN's clutter-removal evaluation does at the first contact, allow_contact=True)."""
     results_dir = pathlib.Path(results_dir)
-    recorded = json.loads((results_dir / "rounds" / method / weight_key(mass_kg) / f"{scene_id}.json").read_text())
+    recorded = run_files.rounds_file(results_dir).get(method, mass_kg, scene_id)
+    if recorded is None:
+        raise ValueError(f"{results_dir} has no round of {method} at {mass_kg:g} kg on {scene_id}")
     path = pathlib.Path(model_path) if model_path else METHODS[method].default_path()
     if file_sha256(path) != recorded["model_sha256"]:
         raise ValueError(f"{path} is not the model the round ran (sha256 {recorded['model_sha256'][:12]}…): "
                          "pass --model with that file")
     config = json.loads((results_dir / "config.json").read_text())
-    scene = json.loads((results_dir / "scenes" / f"{scene_id}.json").read_text())
+    scene = run_files.scenes_file(results_dir).get(scene_id)
     protocol = Protocol(**config["protocol"])
     if close_within_m is not None:
         protocol = dataclasses.replace(protocol, close_on_contact_within_m=close_within_m)
