@@ -272,3 +272,28 @@ def test_a_motion_the_executor_gives_up_on_carries_its_deadline_and_is_stopped(s
     assert result.result_code == R.TIMEOUT and "stop_motion sent" in result.message, result.message
     assert stops and stops[0] - t0 < 5.0, "the executor gave up without stop_motion"
     assert arm["deadlines"] and abs(arm["deadlines"][0] - (t_ros + 2.0)) < 1.0, (arm["deadlines"], t_ros)
+
+
+@pytest.mark.parametrize("execute_params", [{"gripper_empty_closed_m": 0.0, "max_tsdf_age_s": 0.0,
+                                             "arm_service": "hanging/move_to_pose"}])
+def test_an_arm_service_that_leaves_the_graph_while_idle_disarms(stack, ros_process):
+    """An arm adapter in another process that goes away between grasps (stopped, crashed,
+    its node gone) disarms the armed executor, in one sentence, as its death under the
+    stack does; a new adapter and ~/arm bring it back."""
+    import sys
+
+    node = stack["node"]
+    adapter = ros_process("tests", "hanging_arm", cmd=[sys.executable, str(pathlib.Path(__file__).resolve().parents[1] / "support" / "hanging_arm.py")],
+                          remap={"move_to_pose": "hanging/move_to_pose"})
+    adapter.wait_for_output("hanging_arm ready", 30)
+    stack["execute"].wait_for_output(r"arm service \S*hanging/move_to_pose is available", 15)
+    arm_executor(stack)
+    adapter.stop()  # goes away while the executor is armed and idle
+    line = stack["execute"].wait_for_output(r"arm service \S+ left the ROS graph: executor disarmed[^\n]*", 15)
+    print(f"\n{line.group(0)}")
+    refused = call(stack["client"], execute_request(top_down_grasp()))
+    assert refused.result_code == R.NOT_ARMED, refused.message
+    node.create_service(MoveToPose, "hanging/move_to_pose", lambda req, res: setattr(res, "success", True) or res,
+                        callback_group=ReentrantCallbackGroup())
+    arm_executor(stack)
+    assert wait_until(lambda: call(stack["client"], execute_request(top_down_grasp())).result_code == R.SUCCESS, 20)

@@ -235,6 +235,8 @@ class ExecuteNode(Node):
             self.executor_core.armed = False
             self.get_logger().error(f"arm service {self.arm.client.srv_name} left the ROS graph: executor disarmed; "
                                     "check the arm adapter, then call ~/arm")
+        if ready and not self._arm_seen:
+            self.get_logger().info(f"arm service {self.arm.client.srv_name} is available")
         self._arm_seen = ready
 
     def _on_grasps(self, msg):
