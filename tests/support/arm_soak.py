@@ -25,7 +25,10 @@ import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
+import rclpy  # noqa: E402
 import ros_testing  # noqa: E402
+from gravgrasp_msgs.srv import ExecuteGrasp  # noqa: E402
+from std_srvs.srv import SetBool  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 UR_CELL = ROOT / "gravgrasp_detector" / "cells" / "ur5e_2f85_realsense.yaml"
@@ -68,10 +71,7 @@ def main(argv=None) -> int:
     log = args.out / "arm.jsonl"
     log.unlink(missing_ok=True)
     domain = ros_testing.claim_domain_id()
-    os.environ["ROS_DOMAIN_ID"] = str(domain)
-    import rclpy  # lazy: after ROS_DOMAIN_ID is claimed
-    from gravgrasp_msgs.srv import ExecuteGrasp
-    from std_srvs.srv import SetBool
+    os.environ["ROS_DOMAIN_ID"] = str(domain)  # read by rclpy.init
 
     processes, load = [], []
     rclpy.init()
@@ -130,8 +130,7 @@ def main(argv=None) -> int:
 
 
 def _finish(figures, problems, codes) -> int:
-    names = {v: k for k, v in vars(__import__("gravgrasp_msgs.srv", fromlist=["ExecuteGrasp"]).ExecuteGrasp.Response)
-             .items() if k.isupper() and isinstance(v, int)}
+    names = {v: k for k, v in vars(ExecuteGrasp.Response).items() if k.isupper() and isinstance(v, int)}
     print("executions: " + ", ".join(f"{names.get(c, c)} {n}" for c, n in sorted(codes.items())))
     for name, value in figures.items():
         print(f"{name}={value}")
