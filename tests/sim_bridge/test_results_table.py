@@ -68,3 +68,15 @@ def test_the_tabled_runs_are_the_shipped_models():
             rounds = [r for r in run_files.rounds_file(ROOT / run).records() if r["method"] == method]
             assert rounds and all(r["model_sha256"] == sha for r in rounds), \
                 f"{run}'s {method} rounds were not run with the shipped models/{model}"
+
+
+def test_the_figure_draws_every_shipped_method_and_baseline_on_both_object_sets(tmp_path):
+    series = results_table.figure_series()
+    assert list(series) == ["held-out meshes", "procedural objects"]
+    for lines in series.values():
+        assert [name.split(":")[0] for name, _, _ in lines] == [
+            "Ours", "Binary", "Ours-Precision", "VGN (Panda)", "VN-EdgeGraspNet (Panda)", "VGN's grasps on the 2F-85"]
+        assert [dashed for _, dashed, _ in lines] == [False] * 3 + [True] * 3
+        assert [r["mass_kg"] for r in lines[0][2]] == [0.1, 0.5, 1.5, 4.0]
+    results_table.plot(tmp_path / "f.png")
+    assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
