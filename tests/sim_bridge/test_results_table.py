@@ -1,4 +1,4 @@
-"""README's results table is what `python -m sim_bridge.benchmark.results_table` prints
+"""The results table of README.md and results.md is what `python -m sim_bridge.benchmark.results_table` prints
 from the committed results, and those results are the shipped models'."""
 
 import hashlib
@@ -6,21 +6,24 @@ import json
 import re
 from pathlib import Path
 
+import pytest
+
 from sim_bridge.benchmark import results_table, run_files
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def readme_table() -> list:
-    text = (ROOT / "README.md").read_text()
+def tabled(page: str) -> list:
+    text = (ROOT / page).read_text()
     m = re.search(r"<!-- results-table: [^>]*-->\n(.*?)\n<!-- /results-table -->", text, re.S)
-    assert m, "README.md has no <!-- results-table --> block"
+    assert m, f"{page} has no <!-- results-table --> block"
     return m.group(1).split("\n")
 
 
-def test_readme_table_is_what_the_command_prints():
-    assert readme_table() == results_table.table_lines(ROOT), \
-        "README.md's results table differs: paste `python -m sim_bridge.benchmark.results_table` into it"
+@pytest.mark.parametrize("page", ["README.md", "sim_bridge/doc/results.md"])
+def test_the_pages_table_is_what_the_command_prints(page):
+    assert tabled(page) == results_table.table_lines(ROOT), \
+        f"{page}'s results table differs: paste `python -m sim_bridge.benchmark.results_table` into it"
 
 
 def _write_runs(root, rows, comparisons):
