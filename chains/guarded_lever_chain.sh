@@ -9,18 +9,18 @@
 # Each report pairs Ours with Binary per scene under the guarded approach; against the
 # unguarded rounds of the same scenes: python -m sim_bridge.analysis.run_vs_run (benchmark.md).
 # One line per session resumes it (`make lever-guarded PIN=<the commit it started on>`):
-#   ros_ws/run_pinned.sh COMMIT out/guarded_lever.log -- out/pinned/<COMMIT:12>/sim_bridge/scripts/guarded_lever_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/guarded_lever.log -- out/pinned/<COMMIT:12>/chains/guarded_lever_chain.sh
 # Commit the rounds as they come: git add sim_bridge/results/*_v4_guarded_approach && git commit -m "..."
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 0 ] || { echo "usage: sim_bridge/scripts/guarded_lever_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 0 ] || { echo "usage: chains/guarded_lever_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
 size=(--scenes 16 --weights 0.1,1.5 --methods ours,binary --close-on-contact-within-m 0.01)
 
 guarded() {  # guarded SOURCE OUT [OPTION...]: SOURCE's scenes, then Ours and Binary with the guarded approach
-  mkdir -p "sim_bridge/results/$2/scenes"
-  cp -n "sim_bridge/results/$1/scenes/"*.json "sim_bridge/results/$2/scenes/"
+  mkdir -p "sim_bridge/results/$2"
+  cp -n "sim_bridge/results/$1/scenes.jsonl" "sim_bridge/results/$2/"
   echo "[guarded] $(date -u +%FT%TZ) $2: ours,binary at 0.1,1.5 kg"
   python -m sim_bridge.studies.detection_levers --out "sim_bridge/results/$2" --workers "$workers" \
     --no-progress "${size[@]}" "${@:3}" \

@@ -9,7 +9,10 @@
 #      wraps the lock holds; `datagen rescore`, ~32 CPU-h), then their power grasps made as the paper makes them
 #      (`datagen wrap`, 32 per object, ~6 CPU-h), then the mode-payload study on them.
 # A and B run side by side, one worker each. One line per session resumes both:
-#   ros_ws/run_pinned.sh COMMIT out/locked_hand.log -- out/pinned/<COMMIT:12>/sim_bridge/scripts/locked_hand_chain.sh [cell|tables|cell,tables]
+#   ros_ws/run_pinned.sh COMMIT out/locked_hand.log -- out/pinned/<COMMIT:12>/chains/locked_hand_chain.sh [cell|tables|cell,tables]
+# (or make chain RECIPE=locked_hand_chain.sh ARGS=cell PIN=COMMIT). The job begun on a1d39ee0a111,
+# from before chains/, runs that commit's copy in sim_bridge/scripts/; resume it, part by part, with
+#   ros_ws/run_pinned.sh a1d39ee0a111 out/locked_hand.log -- out/pinned/a1d39ee0a111/sim_bridge/scripts/locked_hand_chain.sh cell
 # Commit what has finished as it comes (rounds of A; B's tables object by object):
 #   git add sim_bridge/results/heldout_v4_locked models/grasp_tables_v6
 set -uo pipefail
@@ -20,9 +23,9 @@ tables=models/grasp_tables_v6
 say() { echo "[locked] $(date -u +%FT%TZ) $*"; }
 
 cell() {
-  if [ ! -d "$locked/scenes" ]; then
-    mkdir -p "$locked" && cp -r sim_bridge/results/heldout_v4_decisive/scenes "$locked/scenes.tmp" \
-      && mv "$locked/scenes.tmp" "$locked/scenes"
+  if [ ! -d "$locked/scenes" ] && [ ! -f "$locked/scenes.jsonl" ]; then  # scenes/: a run begun on older code
+    mkdir -p "$locked" && cp sim_bridge/results/heldout_v4_decisive/scenes.jsonl "$locked/.scenes.jsonl.tmp" \
+      && mv "$locked/.scenes.jsonl.tmp" "$locked/scenes.jsonl"
   fi
   for kg in 4.0 1.5; do
     say "A: the locked cell, $kg kg"

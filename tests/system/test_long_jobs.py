@@ -17,14 +17,15 @@ def _git(repo, *args):
                           cwd=repo, check=True, capture_output=True, text=True).stdout.strip()
 
 
-SCRIPTS = sorted(str(p.relative_to(ROOT)) for folder in ("ros_ws", "sim_bridge/scripts")
+SCRIPTS = sorted(str(p.relative_to(ROOT)) for folder in ("ros_ws", "chains")
                  for p in (ROOT / folder).glob("*.sh"))
 
 
-def test_the_chains_are_in_sim_bridge_scripts():
-    """ros_ws holds the workspace set-up only; the long jobs it pins live beside the code they drive."""
-    assert {"sim_bridge/scripts/benchmark_chain.sh", "sim_bridge/scripts/dataset_v5_chain.sh"} <= set(SCRIPTS)
+def test_the_chains_are_recipes_in_chains():
+    """ros_ws holds the workspace set-up only; the long-job recipes it pins live in chains/, not in a package."""
+    assert {"chains/benchmark_chain.sh", "chains/dataset_v5_chain.sh"} <= set(SCRIPTS)
     assert not [s for s in SCRIPTS if s.startswith("ros_ws/") and s.endswith("_chain.sh")]
+    assert not list((ROOT / "sim_bridge").rglob("*_chain.sh"))
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
