@@ -298,7 +298,7 @@ def test_a_procedural_seed_draws_other_objects_is_recorded_and_a_resume_keeps_it
                 "target": "gravity-score", "mass_kg": task.mass_kg, "scene_id": task.scene["scene_id"],
                 "objects": [], "n_objects": 0, "left_before_start": [], "settle_s": 0.0, "end": "table_clear",
                 "attempts": [], "fell_off": [], "successes": 0, "sim_time_s": 0.0, "cpu_s": 0.0,
-                "machine": "test", "execution": dict(protocol.LEGACY_EXECUTION)}
+                "machine": "test", "execution": dict(protocol.LEGACY_EXECUTION), "drive": task.protocol.drive}
 
     monkeypatch.setattr(bench_rounds, "run_round", scripted_round)
     save_test_model(tmp_path / "m.pt")

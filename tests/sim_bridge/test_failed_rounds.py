@@ -49,7 +49,7 @@ def test_a_round_drake_cannot_simulate_is_recorded_once_and_listed_by_scene(tmp_
     monkeypatch.setattr(bench_rounds, "run_round", fails_in_drake)
     argv = ["--out", str(tmp_path), "--methods", "ours", "--models-dir", str(tmp_path / "none"),
             "--model", f"ours={tmp_path / 'm.pt'}", "--scenes", "1", "--weights", "0.1", "--workers", "0",
-            "--no-progress", "--execution", "v4"]  # as run() below: Protocol()'s settings
+            "--no-progress", "--execution", "v4", "--drive", "backdrivable"]  # as run() below: Protocol()'s settings
     assert cb.main(argv) == 1 and ran == ["packed_000"]  # a round is missing
     assert "1 rounds Drake could not simulate, listed in results.md" in capsys.readouterr().out
     (record,) = json.loads((tmp_path / "failed_rounds.json").read_text())
