@@ -9,7 +9,9 @@ and closes the hand again without gravity, keeping those that become power grasp
 This stage does that for each object: it draws `per_object` held precision rows of the
 table (seeded by the object's name), turns each about its closing (y) and approach (z)
 axes by up to `max_turn_deg`, moves it along its approach as deep as the open hand goes
-without touching the object (2.5 mm steps, up to `max_depth_m`, then `clearance_m` back)
+without touching the object, nor the table with the object in the resting pose the parent
+was sampled for (the hand and its 5 cm approach: a grasp a robot could execute; 2.5 mm
+steps, up to `max_depth_m`, then `clearance_m` back)
 and closes on it in Drake with the table's own settings (the rows are appended to it). Every closing is a row (held or not);
 `wrap_rad` (grasp_simulation.wrap_angle_rad) records how far the distal links wrapped,
 and the mode is "power" only for a wrap (grasp_simulation.classify_mode).
@@ -29,6 +31,7 @@ from gravgrasp_detector import atomic_files
 from scipy.spatial.transform import Rotation
 
 from ..parallel import make_executor, run_tasks, task_seed
+from ..physics import hand_collision
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import MODE_NAMES, evaluate_candidate, load_table, stack_rows
@@ -36,6 +39,7 @@ from .object_sources import object_from_table
 
 DIRECTORY = "toward_palm"
 DEPTH_STEP_M = 0.0025
+APPROACH_M = 0.05  # the executor's straight approach, kept clear of the table (scene_dataset.APPROACH_M)
 
 
 @dataclass(frozen=True)
@@ -60,15 +64,19 @@ def offset(turn_y_rad, turn_z_rad, depth_m) -> np.ndarray:
     return T
 
 
-def deepest_free_depth(sim, X_object_tcp, R_offset, max_depth_m, clearance_m) -> float:
-    """The deepest insertion along the turned approach at which the open hand does not
-    touch the object, less `clearance_m` (0 if even the turned pose touches it)."""
+def deepest_free_depth(sim, X_object_tcp, R_offset, max_depth_m, clearance_m, X_table_object=None) -> float:
+    """The deepest insertion along the turned approach at which the open hand touches
+    neither the object nor, with the object in its resting pose `X_table_object` (4x4), the
+    table (the hand and its straight approach: where a robot could put it), less
+    `clearance_m` (0 if even the turned pose touches something)."""
     free = None
     T = np.eye(4)
     T[:3, :3] = R_offset
     for depth in np.arange(0.0, max_depth_m + 1e-9, DEPTH_STEP_M):
         T[:3, 3] = R_offset @ np.array([0.0, 0.0, depth])
-        if sim.collides(X_object_tcp @ T):
+        X = X_object_tcp @ T
+        if sim.collides(X) or (X_table_object is not None and hand_collision.collides(
+                (X_table_object @ X)[None], None, table_z_m=0.0, approach_m=APPROACH_M)[0]):
             break
         free = depth
     return 0.0 if free is None else max(0.0, free - clearance_m)
@@ -95,7 +103,9 @@ def run_wrap_task(task: WrapTask):
         for i, (ty, tz) in zip(parents, turns):
             X = table["X_object_tcp_candidate"][i].astype(float)
             R = offset(ty, tz, 0.0)[:3, :3]
-            T = offset(ty, tz, deepest_free_depth(sim, X, R, task.max_depth_m, task.clearance_m))
+            rest = int(table["rest_pose"][i])
+            X_table_object = table["rest_X_table_object"][rest] if 0 <= rest < len(table["rest_X_table_object"]) else None
+            T = offset(ty, tz, deepest_free_depth(sim, X, R, task.max_depth_m, task.clearance_m, X_table_object))
             rows.append(dict(evaluate_candidate(sim, X @ T), rest_pose=np.int16(table["rest_pose"][i])))
             offsets.append(T)
         arrays = stack_rows(rows)
