@@ -102,3 +102,20 @@ def test_the_backdrivable_cell_never_locks():
     world.command_fingers(0.0, 0.1, 40.0)
     world.advance(1.0)
     assert world.finger_status()[1] == "blocked" and not world.fingers_locked()
+
+
+def test_two_rescored_tables_are_compared_row_by_row(tmp_path, capsys):
+    from sim_bridge.studies import transmission_study as ts
+
+    def write(d, scores, grasped, X=np.eye(4)):
+        (d / "objects").mkdir(parents=True)
+        np.savez(d / "objects" / "box.npz", X_object_tcp_candidate=np.stack([X, X]).astype(np.float32),
+                 mode=np.array([1, 1], np.uint8), grasped=np.array(grasped), scores_n=np.array(scores, np.float32))
+    write(tmp_path / "locked", [[30, 30, 80, 80, 26, 25], [10] * 6], [True, True])
+    write(tmp_path / "free", [[30, 30, 45, 45, 25, 24], [10] * 6], [True, False])
+    c = ts.compare_tables(tmp_path / "locked", tmp_path / "free")
+    assert (c["rows"], c["mode_differs"], c["held_differs"], c["held_in_both"]) == (2, 0, 1, 1)
+    assert c["median_locked_n"][2] == 80.0 and c["min_score_ratio_p10_p50_p90"][1] == pytest.approx(25 / 24, abs=1e-3)
+    write(tmp_path / "other", [[1] * 6] * 2, [True, True], X=2 * np.eye(4))
+    assert ts.main(["--compare-tables", str(tmp_path / "locked"), str(tmp_path / "other")]) == 2
+    assert "other candidates" in capsys.readouterr().err

@@ -15,7 +15,9 @@ against the back-drivable drive it replaces:
    object that moves > 1 mm in that idle hold (a snap-out), is a failure.
 
 Writes --out (JSON), prints the tables; the last line is `lock_pinch_inflation=` (the
-locked pinch's +x score over the back-drivable one, minus 1).
+locked pinch's +x score over the back-drivable one, minus 1). `--compare-tables LOCKED
+BACKDRIVABLE` instead compares the same table rows rescored with each drive
+(`datagen rescore --sim-setting drive=... --max-held-rows N --names FILE`).
 """
 
 from __future__ import annotations
@@ -127,6 +129,32 @@ def stability_tasks(tables_dir, mesh_dirs, grasps, seed=0) -> list:
     return tasks
 
 
+def compare_tables(locked_dir, backdrivable_dir) -> dict:
+    """The same rows of two `datagen rescore` outputs (one per drive): do the closings agree,
+    and how do the scores of rows held in both compare?"""
+    a, b, rows, mode_diff, held_diff = [], [], 0, 0, 0
+    for f in sorted(pathlib.Path(locked_dir).glob("objects/*.npz")):
+        other = pathlib.Path(backdrivable_dir) / "objects" / f.name
+        if not other.exists():
+            continue
+        lk, bd = load_table(f), load_table(other)
+        if not np.array_equal(lk["X_object_tcp_candidate"], bd["X_object_tcp_candidate"]):
+            raise ValueError(f"{f.name}: the two tables hold other candidates; rescore both with the same "
+                             "--max-held-rows, --names and --seed")
+        rows += len(lk["grasped"])
+        mode_diff += int((lk["mode"] != bd["mode"]).sum())
+        held_diff += int((lk["grasped"] != bd["grasped"]).sum())
+        both = lk["grasped"].astype(bool) & bd["grasped"].astype(bool)
+        a.append(lk["scores_n"][both])
+        b.append(bd["scores_n"][both])
+    a, b = (np.concatenate(x) if x else np.zeros((0, 6)) for x in (a, b))
+    ratio = a.min(1) / np.maximum(b.min(1), 1e-3)
+    return dict(rows=rows, mode_differs=mode_diff, held_differs=held_diff, held_in_both=len(a),
+                median_locked_n=[round(float(v), 1) for v in np.median(a, 0)] if len(a) else [],
+                median_backdrivable_n=[round(float(v), 1) for v in np.median(b, 0)] if len(b) else [],
+                min_score_ratio_p10_p50_p90=np.percentile(ratio, [10, 50, 90]).round(3).tolist() if len(a) else [])
+
+
 def summary_lines(result: dict) -> list:
     lines = ["| drive | " + " | ".join(f"{w * 1000:g} mm" for w in SQUEEZE_WIDTHS_M) + " |",
              "| --- |" + " --- |" * len(SQUEEZE_WIDTHS_M)]
@@ -162,7 +190,22 @@ def main(argv=None) -> int:
     p.add_argument("--stability-grasps", type=int, default=170, help="held grasps to evaluate (6 ramps each)")
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--out", default="sim_bridge/results/transmission_study.json")
+    p.add_argument("--compare-tables", nargs=2, metavar=("LOCKED", "BACKDRIVABLE"), default=None,
+                   help="only compare two `datagen rescore` outputs of the same rows, one per drive (prints "
+                        "the agreement of the closings and the score medians; writes nothing)")
     args = p.parse_args(argv)
+    if args.compare_tables:
+        try:
+            c = compare_tables(*args.compare_tables)
+        except ValueError as e:
+            print(f"transmission_study: {e}", file=sys.stderr)
+            return 2
+        print(f"{c['rows']} rows: mode differs in {c['mode_differs']}, held/failed in {c['held_differs']}; "
+              f"{c['held_in_both']} held in both")
+        print("median scores +x -x +y -y +z -z [N]: locked", c["median_locked_n"], "back-drivable",
+              c["median_backdrivable_n"])
+        print(f"min_score_ratio_p50={c['min_score_ratio_p10_p50_p90'][1] if c['held_in_both'] else float('nan')}")
+        return 0
     mesh_dirs = args.mesh_dir or [str(pathlib.Path("..") / "shared" / "meshes" / "vgn_train")]
     result = {"drives": {}, "label_settings": dataclasses.asdict(SimSettings.for_labels(drive="self_locking"))}
     stab = []
