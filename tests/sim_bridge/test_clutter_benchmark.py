@@ -411,7 +411,7 @@ def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeyp
     from sim_bridge.benchmark.machine import machine_name
     here = machine_name()
     assert json.loads((out / "config.json").read_text())["machines"] == [here]
-    assert json.loads((out / "rounds" / "ours" / "0.3" / "packed_000.json").read_text())["machine"] == here
+    assert run_files.rounds_file(out).get("ours", 0.3, "packed_000")["machine"] == here
     assert f"Rounds by machine: {here} (2)" in md  # ours' round and blind's
     # Every attempt appears once in the outcome table.
     md_lines = md.splitlines()
@@ -435,7 +435,9 @@ def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeyp
     first = (out / "attempts.json").read_text()
     # A partial run (one round's file lost) resumes to the same results; --report before
     # that runs nothing and reports the rounds there are (none of ours).
-    (out / "rounds" / "ours" / "0.3" / "packed_000.json").unlink()
+    kept = [line for line in (out / "rounds.jsonl").read_text().splitlines()
+            if (json.loads(line)["method"], json.loads(line)["mass_kg"]) != ("ours", 0.3)]
+    (out / "rounds.jsonl").write_text("".join(line + "\n" for line in kept))
     (out / "attempts.json").unlink()
     monkeypatch.setattr(bench_rounds, "run_round", lambda task: pytest.fail("--report ran a round"))
     capsys.readouterr()
@@ -444,7 +446,7 @@ def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeyp
     md = (out / "results.md").read_text()
     assert "| ours | 0.3 |" not in md and "No rounds (not run, or not yet): ours at 0.3 kg." in md
     assert "an interim report" in capsys.readouterr().out
-    assert not (out / "rounds" / "ours" / "0.3" / "packed_000.json").exists()
+    assert run_files.rounds_file(out).get("ours", 0.3, "packed_000") is None
     (out / "excluded_objects.json").unlink()  # a run stopped before it listed them
     assert cb.main(argv + ["--report"]) == 0
     assert cb.main(argv[:1] + [str(tmp_path / "nothing")] + argv[2:] + ["--report"]) == 2
@@ -501,7 +503,7 @@ def test_a_recorded_round_replays_to_the_same_attempts_and_shows_the_closing_reg
 
     models, out, _ = small_run
     model = models / "ours.pt"
-    recorded = json.loads((out / "rounds" / "ours" / "0.3" / "packed_000.json").read_text())["attempts"]
+    recorded = run_files.rounds_file(out).get("ours", 0.3, "packed_000")["attempts"]
     assert recorded
     capsys.readouterr()
     argv = ["--results", str(out), "--method", "ours", "--weight", "0.3", "--scene", "packed_000",
@@ -560,10 +562,8 @@ def test_a_report_names_the_rounds_it_leaves_out(tmp_path):
     _legacy_config(tmp_path)
     model = tmp_path / "m.pt"
     model.write_bytes(b"x")
-    for method, kg in (("binary", "1.5"), ("ours", "0.1"), ("ours", "4.0")):
-        (tmp_path / "rounds" / method / kg).mkdir(parents=True)
-        (tmp_path / "rounds" / method / kg / "packed_000.json").write_text("{}")
-    (tmp_path / "rounds" / "ours" / "0.5").mkdir()  # no rounds there: nothing left out
+    run_files.rounds_file(tmp_path).put(*({"method": method, "mass_kg": kg, "scene_id": "packed_000"}
+                                          for method, kg in (("binary", 1.5), ("ours", 0.1), ("ours", 4.0))))
     notes = []
     run_benchmark(tmp_path, {"ours": str(model)}, [0.1], 2, protocol=with_execution(P(), "v4"), report_only=True,
                   note=notes.append)
@@ -572,7 +572,7 @@ def test_a_report_names_the_rounds_it_leaves_out(tmp_path):
     run_benchmark(tmp_path, {"ours": str(model), "binary": str(model)}, [0.1, 1.5, 4.0], 2,
                   protocol=with_execution(P(), "v4"), report_only=True, note=notes.append)
     assert notes == []
-    assert (tmp_path / "rounds" / "binary" / "1.5" / "packed_000.json").exists()
+    assert run_files.rounds_file(tmp_path).get("binary", 1.5, "packed_000") is not None
 
 
 def test_execution_defaults_to_the_settings_of_the_run_being_resumed(tmp_path):

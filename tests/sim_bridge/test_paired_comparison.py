@@ -8,7 +8,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from sim_bridge.benchmark import paired
+from sim_bridge.benchmark import paired, run_files
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 
@@ -41,7 +41,7 @@ def test_scenes_without_an_attempt_are_left_out_and_the_difference_is_per_scene(
 
 
 def test_the_committed_v4_rounds_give_the_figures_the_docs_quote():
-    rounds = [json.loads(p.read_text()) for p in (ROOT / "sim_bridge/results/heldout_v4/rounds").glob("*/*/*.json")]
+    rounds = run_files.rounds_file(ROOT / "sim_bridge/results/heldout_v4").records()
     found = {(c["method"], c["mass_kg"]): c for c in paired.compare_paired(rounds)}
     ours_01, ours_15, precision_15 = found["ours", 0.1], found["ours", 1.5], found["ours_precision", 1.5]
     assert ours_01["scenes"] == 16 and round(100 * ours_01["diff"], 1) == -17.6 and round(ours_01["p_value"], 3) == 0.014
