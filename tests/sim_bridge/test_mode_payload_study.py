@@ -21,7 +21,7 @@ def table(scores_plus_z, modes, grasped):
     scores[:, 4] = scores_plus_z  # +z in the TCP frame: up, against gravity, for a top-down grasp
     flipped = np.eye(4)
     flipped[:3, :3] = np.diag([1.0, -1.0, -1.0])  # upside down: every approach points up
-    return {"grasped": np.array(grasped), "X_object_tcp": np.stack([top_down()] * n).astype(np.float32),
+    return {"grasped": np.array(grasped), "X_object_tcp_candidate": np.stack([top_down()] * n).astype(np.float32),
             "mode": np.array([MODE_NAMES.index(m) for m in modes], np.uint8), "scores_n": scores.astype(np.float32),
             "rest_X_table_object": np.stack([np.eye(4), flipped]), "rest_probability": np.array([0.6, 0.2])}
 
@@ -47,7 +47,7 @@ def test_the_best_of_each_mode_per_pose():
 
 def test_a_grasp_into_the_table_does_not_count():
     t = table([50.0], ["power"], [True])
-    t["X_object_tcp"][0, 2, 3] = 0.0  # the pinch point on the table: the finger tips below it
+    t["X_object_tcp_candidate"][0, 2, 3] = 0.0  # the pinch point on the table: the finger tips below it
     assert mps.study({"box": t}, (1.5,))["weights"][0]["power"] == 0.0
 
 

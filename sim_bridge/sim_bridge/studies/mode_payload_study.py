@@ -52,7 +52,10 @@ def pose_scores(table: dict) -> list:
     """[(rest probability, power f_g's, precision f_g's)] of the executable held grasps in each
     resting pose of one grasp table."""
     held = np.flatnonzero(table["grasped"].astype(bool))
-    X_object_tcp = table["X_object_tcp"][held].astype(np.float64)
+    # the commanded pose, as the scene labels carry it (scene_dataset's label_pose): where the
+    # robot puts the hand, checked against the table; the settled pose of a wrap sits deeper,
+    # where the object was pulled onto the palm without gravity
+    X_object_tcp = table["X_object_tcp_candidate"][held].astype(np.float64)
     mode = np.where(wrapping_power(table), POWER, PRECISION)[held]
     out = []
     for X_table_object, p in zip(table["rest_X_table_object"], table["rest_probability"]):
