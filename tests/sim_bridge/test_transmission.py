@@ -110,12 +110,14 @@ def test_two_rescored_tables_are_compared_row_by_row(tmp_path, capsys):
     def write(d, scores, grasped, X=np.eye(4)):
         (d / "objects").mkdir(parents=True)
         np.savez(d / "objects" / "box.npz", X_object_tcp_candidate=np.stack([X, X]).astype(np.float32),
-                 mode=np.array([1, 1], np.uint8), grasped=np.array(grasped), scores_n=np.array(scores, np.float32))
+                 mode=np.array([1, 1], np.uint8), grasped=np.array(grasped), scores_n=np.array(scores, np.float32),
+                 finger_joint_names=np.zeros(0, "<U1"), finger_joint_angles=np.zeros((2, 0), np.float32))
     write(tmp_path / "locked", [[30, 30, 80, 80, 26, 25], [10] * 6], [True, True])
     write(tmp_path / "free", [[30, 30, 45, 45, 25, 24], [10] * 6], [True, False])
     c = ts.compare_tables(tmp_path / "locked", tmp_path / "free")
     assert (c["rows"], c["mode_differs"], c["held_differs"], c["held_in_both"]) == (2, 0, 1, 1)
-    assert c["median_locked_n"][2] == 80.0 and c["min_score_ratio_p10_p50_p90"][1] == pytest.approx(25 / 24, abs=1e-3)
+    assert c["wraps"] is None and c["not_wraps"]["median_locked_n"][2] == 80.0
+    assert c["not_wraps"]["min_score_ratio_p10_p50_p90"][1] == pytest.approx(25 / 24, abs=1e-3)
     write(tmp_path / "other", [[1] * 6] * 2, [True, True], X=2 * np.eye(4))
     assert ts.main(["--compare-tables", str(tmp_path / "locked"), str(tmp_path / "other")]) == 2
     assert "other candidates" in capsys.readouterr().err

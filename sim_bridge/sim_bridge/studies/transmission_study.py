@@ -31,7 +31,8 @@ import time
 import numpy as np
 from gravgrasp_detector import atomic_files
 
-from ..datagen.object_grasps import load_table
+from ..datagen.object_grasps import MODE_NAMES, load_table
+from ..datagen.perturbed_grasps import load_labelling_table
 from ..datagen.object_sources import object_from_table
 from ..parallel import make_executor, run_tasks, task_seed
 from ..physics.contact import SimSettings
@@ -130,29 +131,38 @@ def stability_tasks(tables_dir, mesh_dirs, grasps, seed=0) -> list:
 
 
 def compare_tables(locked_dir, backdrivable_dir) -> dict:
-    """The same rows of two `datagen rescore` outputs (one per drive): do the closings agree,
-    and how do the scores of rows held in both compare?"""
-    a, b, rows, mode_diff, held_diff = [], [], 0, 0, 0
+    """The same rows of two `datagen rescore` (and `datagen wrap`) outputs, one per drive:
+    do the closings agree, and how do the scores of rows held in both compare, for the
+    wraps (power rows) and the rest?"""
+    a, b, wrap, rows, mode_diff, held_diff = [], [], [], 0, 0, 0
     for f in sorted(pathlib.Path(locked_dir).glob("objects/*.npz")):
-        other = pathlib.Path(backdrivable_dir) / "objects" / f.name
-        if not other.exists():
+        if not (pathlib.Path(backdrivable_dir) / "objects" / f.name).exists():
             continue
-        lk, bd = load_table(f), load_table(other)
-        if not np.array_equal(lk["X_object_tcp_candidate"], bd["X_object_tcp_candidate"]):
-            raise ValueError(f"{f.name}: the two tables hold other candidates; rescore both with the same "
-                             "--max-held-rows, --names and --seed")
+        lk = load_labelling_table(f.parent, f.stem)
+        bd = load_labelling_table(pathlib.Path(backdrivable_dir) / "objects", f.stem)
+        if not np.allclose(lk["X_object_tcp_candidate"], bd["X_object_tcp_candidate"], atol=1e-6):
+            raise ValueError(f"{f.name}: the two tables hold other candidates; rescore (and wrap) both with the "
+                             "same --max-held-rows, --names, --per-object and --seed")
         rows += len(lk["grasped"])
         mode_diff += int((lk["mode"] != bd["mode"]).sum())
         held_diff += int((lk["grasped"] != bd["grasped"]).sum())
         both = lk["grasped"].astype(bool) & bd["grasped"].astype(bool)
         a.append(lk["scores_n"][both])
         b.append(bd["scores_n"][both])
+        wrap.append(lk["mode"][both] == MODE_NAMES.index("power"))
     a, b = (np.concatenate(x) if x else np.zeros((0, 6)) for x in (a, b))
-    ratio = a.min(1) / np.maximum(b.min(1), 1e-3)
+    wrap = np.concatenate(wrap) if wrap else np.zeros(0, bool)
+
+    def medians(mask):
+        if not mask.any():
+            return None
+        ratio = a[mask].min(1) / np.maximum(b[mask].min(1), 1e-3)
+        return dict(rows=int(mask.sum()),
+                    median_locked_n=[round(float(v), 1) for v in np.median(a[mask], 0)],
+                    median_backdrivable_n=[round(float(v), 1) for v in np.median(b[mask], 0)],
+                    min_score_ratio_p10_p50_p90=[round(float(v), 3) for v in np.percentile(ratio, [10, 50, 90])])
     return dict(rows=rows, mode_differs=mode_diff, held_differs=held_diff, held_in_both=len(a),
-                median_locked_n=[round(float(v), 1) for v in np.median(a, 0)] if len(a) else [],
-                median_backdrivable_n=[round(float(v), 1) for v in np.median(b, 0)] if len(b) else [],
-                min_score_ratio_p10_p50_p90=np.percentile(ratio, [10, 50, 90]).round(3).tolist() if len(a) else [])
+                not_wraps=medians(~wrap), wraps=medians(wrap))
 
 
 def summary_lines(result: dict) -> list:
@@ -202,9 +212,13 @@ def main(argv=None) -> int:
             return 2
         print(f"{c['rows']} rows: mode differs in {c['mode_differs']}, held/failed in {c['held_differs']}; "
               f"{c['held_in_both']} held in both")
-        print("median scores +x -x +y -y +z -z [N]: locked", c["median_locked_n"], "back-drivable",
-              c["median_backdrivable_n"])
-        print(f"min_score_ratio_p50={c['min_score_ratio_p10_p50_p90'][1] if c['held_in_both'] else float('nan')}")
+        for kind in ("not_wraps", "wraps"):
+            m = c[kind]
+            if m:
+                print(f"{kind} ({m['rows']}): median scores +x -x +y -y +z -z [N] locked {m['median_locked_n']}, "
+                      f"back-drivable {m['median_backdrivable_n']}; min score ratio p10/p50/p90 "
+                      f"{m['min_score_ratio_p10_p50_p90']}")
+        print(f"min_score_ratio_p50={c['not_wraps']['min_score_ratio_p10_p50_p90'][1] if c['not_wraps'] else float('nan')}")
         return 0
     mesh_dirs = args.mesh_dir or [str(pathlib.Path("..") / "shared" / "meshes" / "vgn_train")]
     result = {"drives": {}, "label_settings": dataclasses.asdict(SimSettings.for_labels(drive="self_locking"))}
