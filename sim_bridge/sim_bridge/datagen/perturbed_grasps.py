@@ -27,11 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from gravgrasp_detector import atomic_files
-from ..parallel import make_executor, run_tasks, task_seed
+from ..parallel import task_seed
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import ROW_KEYS, evaluate_candidate, load_table, stack_rows
 from .object_sources import object_from_table
+from .per_object_stage import appended_rows_dir, run_per_object
 
 # The directions a held candidate is moved in, in its own TCP frame (x across the pads, z
 # along the approach); the perturbation study measured how far along each a grasp holds.
@@ -105,12 +106,7 @@ def run_perturb_stage(objects_out, mesh_dirs, per_object=64, shift_m=0.015, seed
                       exclude=frozenset(), progress=True):
     """Perturbed rows for every table of `objects_out` (the objects stage's --out) that
     has held candidates and no perturbed file yet. Returns a summary dict."""
-    objects_dir = pathlib.Path(objects_out) / "objects"
-    if not objects_dir.is_dir():
-        raise FileNotFoundError(f"{objects_out} holds no grasp tables (no objects/ directory): "
-                                "give the --out of `datagen objects`")
-    (objects_dir / DIRECTORY).mkdir(exist_ok=True)
-    atomic_files.remove_stale_temporaries(objects_dir / DIRECTORY)
+    objects_dir = appended_rows_dir(objects_out, DIRECTORY)
     tasks, kept = [], 0
     for path in sorted(objects_dir.glob("*.npz")):
         if path.stem in exclude:
@@ -123,21 +119,7 @@ def run_perturb_stage(objects_out, mesh_dirs, per_object=64, shift_m=0.015, seed
             if not t["grasped"].any():
                 continue
         tasks.append(PerturbTask(path.stem, str(path), str(out), tuple(mesh_dirs), per_object, shift_m, seed))
-    summary = dict(done=0, kept=kept, tried=0, held=0, errors=[])
-
-    def on_result(task, result):
-        status, payload = result
-        if status == "ok":
-            summary["done"] += 1
-            summary["tried"] += payload[0]
-            summary["held"] += payload[1]
-        else:
-            summary["errors"].append(payload)
-
-    if tasks:
-        with make_executor(workers) as ex:
-            run_tasks(ex, run_perturb_task, tasks, on_result, desc="perturbed grasps", progress=progress)
-    return summary
+    return run_per_object(run_perturb_task, tasks, kept, ("tried", "held"), "perturbed grasps", workers, progress)
 
 
 def load_labelling_table(objects_dir, name):

@@ -30,12 +30,13 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from scipy.spatial.transform import Rotation
 
-from ..parallel import make_executor, run_tasks, task_seed
+from ..parallel import task_seed
 from ..physics import hand_collision
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import MODE_NAMES, evaluate_candidate, load_table, stack_rows
 from .object_sources import object_from_table
+from .per_object_stage import appended_rows_dir, run_per_object
 
 DIRECTORY = "toward_palm"
 DEPTH_STEP_M = 0.0025
@@ -131,12 +132,7 @@ def run_wrap_stage(objects_out, mesh_dirs, per_object=32, max_turn_deg=20.0, max
     """Toward-the-palm rows for every table of `objects_out` (or those in `names`) with
     held precision rows and no such file yet, simulated with each table's own settings.
     Returns a summary dict."""
-    objects_dir = pathlib.Path(objects_out) / "objects"
-    if not objects_dir.is_dir():
-        raise FileNotFoundError(f"{objects_out} holds no grasp tables (no objects/ directory): "
-                                "give the --out of `datagen objects`")
-    (objects_dir / DIRECTORY).mkdir(exist_ok=True)
-    atomic_files.remove_stale_temporaries(objects_dir / DIRECTORY)
+    objects_dir = appended_rows_dir(objects_out, DIRECTORY)
     tasks, kept = [], 0
     for path in sorted(objects_dir.glob("*.npz")):
         if names is not None and path.stem not in names:
@@ -150,18 +146,5 @@ def run_wrap_stage(objects_out, mesh_dirs, per_object=32, max_turn_deg=20.0, max
                 continue
         tasks.append(WrapTask(path.stem, str(path), str(out), tuple(mesh_dirs), per_object, max_turn_deg,
                               max_depth_m, clearance_m, seed))
-    summary = dict(done=0, kept=kept, tried=0, held=0, power=0, errors=[])
-
-    def on_result(task, result):
-        status, payload = result
-        if status == "ok":
-            summary["done"] += 1
-            for k, v in zip(("tried", "held", "power"), payload):
-                summary[k] += v
-        else:
-            summary["errors"].append(payload)
-
-    if tasks:
-        with make_executor(workers) as ex:
-            run_tasks(ex, run_wrap_task, tasks, on_result, desc="toward the palm", progress=progress)
-    return summary
+    return run_per_object(run_wrap_task, tasks, kept, ("tried", "held", "power"), "toward the palm", workers,
+                          progress)

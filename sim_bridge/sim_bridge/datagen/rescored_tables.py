@@ -23,11 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 from gravgrasp_detector import atomic_files
 
-from ..parallel import make_executor, run_tasks, task_seed
+from ..parallel import task_seed
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator
 from .object_grasps import ROW_KEYS, evaluate_candidate, load_table, stack_rows
 from .object_sources import object_from_table
+from .per_object_stage import run_per_object
 
 # Settings that act only after the hand has settled (the drive engages then) or on the
 # ramps: changing only these leaves every closing, and so every failed row, as it was.
@@ -129,18 +130,4 @@ def run_rescore_stage(source_out, out, mesh_dirs, overrides=(), max_held_rows=0,
             continue
         tasks.append(RescoreTask(path.stem, str(path), str(target), tuple(mesh_dirs), tuple(overrides),
                                  max_held_rows, seed))
-    summary = dict(done=0, kept=kept, simulated=0, held=0, errors=[])
-
-    def on_result(task, result):
-        status, payload = result
-        if status == "ok":
-            summary["done"] += 1
-            summary["simulated"] += payload[0]
-            summary["held"] += payload[1]
-        else:
-            summary["errors"].append(payload)
-
-    if tasks:
-        with make_executor(workers) as ex:
-            run_tasks(ex, run_rescore_task, tasks, on_result, desc="rescore", progress=progress)
-    return summary
+    return run_per_object(run_rescore_task, tasks, kept, ("simulated", "held"), "rescore", workers, progress)
