@@ -243,9 +243,6 @@ def main(argv=None):
     wr.add_argument("--per-object", type=int, default=32, help="held precision candidates per object")
     wr.add_argument("--max-turn-deg", type=float, default=20.0, help="turn about the closing and approach axes, drawn in ±this")
     wr.add_argument("--max-depth-mm", type=float, default=40.0, help="deepest move toward the palm")
-    wr.add_argument("--select", choices=("deepest", "random"), default="deepest",
-                    help="which candidates to close on: the per-object that go deepest of 8x as many (default), "
-                         "or the first per-object drawn")
     wr.add_argument("--seed", type=int, default=0)
     wr.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     wr.add_argument("--no-progress", action="store_true")
@@ -366,7 +363,7 @@ def _run_rescore_or_wrap(p, args):
         else:
             s = power_grasps.run_wrap_stage(args.objects, args.meshes, args.per_object, args.max_turn_deg,
                                             args.max_depth_mm / 1000, seed=args.seed, workers=args.workers,
-                                            names=names, progress=not args.no_progress, select=args.select)
+                                            names=names, progress=not args.no_progress)
             line = (f"wrap: objects_done={s['done']} kept={s['kept']} closings={s['tried']} held={s['held']} "
                     f"power={s['power']}")
     except (FileNotFoundError, ObjectError, ValueError) as e:

@@ -6,15 +6,13 @@ deepest insertion stops where the open fingers first touch it, so the palm rarel
 there. The paper (Sec. III-A) perturbs precision grasps "in translation and rotation"
 and closes the hand again without gravity, keeping those that become power grasps.
 
-This stage does that for each object: it draws held precision rows of the table (seeded by
-the object's name), turns each about its closing (y) and approach (z) axes by up to
-`max_turn_deg`, moves it along its approach as deep as the open hand goes
+This stage does that for each object: it draws `per_object` held precision rows of the
+table (seeded by the object's name), turns each about its closing (y) and approach (z)
+axes by up to `max_turn_deg`, moves it along its approach as deep as the open hand goes
 without touching the object, nor the table with the object in the resting pose the parent
 was sampled for (the hand and its 5 cm approach: a grasp a robot could execute; 2.5 mm
-steps, up to `max_depth_m`, then `clearance_m` back) and, of 8 x `per_object` such
-candidates, closes on the `per_object` that go deepest (a wrap needs the palm at the
-object: of randomly drawn ones 22 of 198 held closings wrapped in the gate; `select`
-"random" closes on the first `per_object` instead) in Drake with the table's own settings (the rows are appended to it). Every closing is a row (held or not);
+steps, up to `max_depth_m`, then `clearance_m` back)
+and closes on it in Drake with the table's own settings (the rows are appended to it). Every closing is a row (held or not);
 `wrap_rad` (grasp_simulation.wrap_angle_rad) records how far the distal links wrapped,
 and the mode is "power" only for a wrap (grasp_simulation.classify_mode).
 
@@ -42,8 +40,6 @@ from .per_object_stage import appended_rows_dir, run_per_object
 
 DIRECTORY = "toward_palm"
 DEPTH_STEP_M = 0.0025
-SELECTIONS = ("deepest", "random")
-CANDIDATES_PER_CLOSING = 8  # "deepest": candidates whose depth is checked per closing simulated
 APPROACH_M = 0.05  # the executor's straight approach, kept clear of the table (scene_dataset.APPROACH_M)
 
 
@@ -58,7 +54,6 @@ class WrapTask:
     max_depth_m: float
     clearance_m: float
     seed: int
-    select: str = "deepest"  # or "random" (SELECTIONS)
 
 
 def offset(turn_y_rad, turn_z_rad, depth_m) -> np.ndarray:
@@ -88,32 +83,13 @@ def deepest_free_depth(sim, X_object_tcp, R_offset, max_depth_m, clearance_m, X_
     return 0.0 if free is None else max(0.0, free - clearance_m)
 
 
-def plan(table, count, max_turn_deg, seed):
-    """(candidate parent rows, turns about y and z [rad]): up to `count` held precision rows
-    of one table in a seeded order, each with its turn; deterministic per name and seed."""
+def plan(table, per_object, max_turn_deg, seed):
+    """(parent rows, turns about y and z [rad]) for one table: deterministic per name and seed."""
     rng = np.random.default_rng(task_seed(seed, "toward_palm", str(table["name"])))
     precision = np.flatnonzero(table["grasped"].astype(bool) & (table["mode"] == MODE_NAMES.index("precision")))
-    parents = rng.choice(precision, min(count, len(precision)), replace=False)
+    parents = np.sort(rng.choice(precision, min(per_object, len(precision)), replace=False))
     turns = np.deg2rad(rng.uniform(-max_turn_deg, max_turn_deg, size=(len(parents), 2)))
     return parents, turns
-
-
-def toward_palm_offsets(sim, table, parents, turns, max_depth_m, clearance_m) -> list:
-    """The TCP-frame offset (4x4) of each parent row: its turn, then as deep as the object and
-    the table (in the parent's resting pose) allow."""
-    out = []
-    for i, (ty, tz) in zip(parents, turns):
-        rest = int(table["rest_pose"][i])
-        X_table_object = table["rest_X_table_object"][rest] if 0 <= rest < len(table["rest_X_table_object"]) else None
-        depth = deepest_free_depth(sim, table["X_object_tcp_candidate"][i].astype(float), offset(ty, tz, 0.0)[:3, :3],
-                                   max_depth_m, clearance_m, X_table_object)
-        out.append(offset(ty, tz, depth))
-    return out
-
-
-def depth_of(T) -> float:
-    """How far an offset moves the TCP along its turned approach [m]."""
-    return float((T[:3, :3].T @ T[:3, 3])[2])
 
 
 def run_wrap_task(task: WrapTask):
@@ -121,27 +97,25 @@ def run_wrap_task(task: WrapTask):
     Returns ("ok", (tried, held, wrapped)) or ("error", message)."""
     try:
         table = load_table(task.table_path)
+        parents, turns = plan(table, task.per_object, task.max_turn_deg, task.seed)
         settings = SimSettings.from_record(json.loads(str(table["sim_settings"])))  # the table's own: rows append
         sim = GraspSimulator(object_from_table(table, task.mesh_dirs), settings)
-        # "deepest": of CANDIDATES_PER_CLOSING x per_object seeded candidates, close on those the
-        # palm gets nearest (a wrap needs the palm at the object; only collision checks are spent
-        # on the rest); "random": the first per_object of them, however deep they go
-        pool = task.per_object * (CANDIDATES_PER_CLOSING if task.select == "deepest" else 1)
-        parents, turns = plan(table, pool, task.max_turn_deg, task.seed)
-        offsets = toward_palm_offsets(sim, table, parents, turns, task.max_depth_m, task.clearance_m)
-        order = (np.argsort([-depth_of(T) for T in offsets], kind="stable") if task.select == "deepest"
-                 else np.arange(len(parents)))
-        chosen = np.sort(order[:task.per_object])
-        parents, offsets = parents[chosen], [offsets[k] for k in chosen]
-        rows = [dict(evaluate_candidate(sim, table["X_object_tcp_candidate"][i].astype(float) @ T),
-                     rest_pose=np.int16(table["rest_pose"][i])) for i, T in zip(parents, offsets)]
+        rows, offsets = [], []
+        for i, (ty, tz) in zip(parents, turns):
+            X = table["X_object_tcp_candidate"][i].astype(float)
+            R = offset(ty, tz, 0.0)[:3, :3]
+            rest = int(table["rest_pose"][i])
+            X_table_object = table["rest_X_table_object"][rest] if 0 <= rest < len(table["rest_X_table_object"]) else None
+            T = offset(ty, tz, deepest_free_depth(sim, X, R, task.max_depth_m, task.clearance_m, X_table_object))
+            rows.append(dict(evaluate_candidate(sim, X @ T), rest_pose=np.int16(table["rest_pose"][i])))
+            offsets.append(T)
         arrays = stack_rows(rows)
         arrays.update(parent=parents.astype(np.int32), offset_tcp=np.asarray(offsets, np.float32).reshape(-1, 4, 4),
                       name=np.asarray(str(table["name"])), table_rows=np.asarray(len(table["grasped"])),
                       settings=np.asarray(json.dumps(dict(
                           per_object=task.per_object, max_turn_deg=task.max_turn_deg, max_depth_m=task.max_depth_m,
-                          clearance_m=task.clearance_m, seed=task.seed, select=task.select,
-                          sim=dataclasses.asdict(settings)), sort_keys=True)))
+                          clearance_m=task.clearance_m, seed=task.seed, sim=dataclasses.asdict(settings)),
+                          sort_keys=True)))
         atomic_files.save_npz(pathlib.Path(task.out_path), **arrays)
         power = arrays["grasped"] & (arrays["mode"] == MODE_NAMES.index("power"))
         return "ok", (len(rows), int(arrays["grasped"].sum()), int(power.sum()))
@@ -154,12 +128,10 @@ def wrap_path(objects_dir, name) -> pathlib.Path:
 
 
 def run_wrap_stage(objects_out, mesh_dirs, per_object=32, max_turn_deg=20.0, max_depth_m=0.04, clearance_m=0.001,
-                   seed=0, workers=None, names=None, progress=True, select="deepest"):
+                   seed=0, workers=None, names=None, progress=True):
     """Toward-the-palm rows for every table of `objects_out` (or those in `names`) with
     held precision rows and no such file yet, simulated with each table's own settings.
     Returns a summary dict."""
-    if select not in SELECTIONS:
-        raise ValueError(f"select {select!r}: use {' or '.join(map(repr, SELECTIONS))}")
     objects_dir = appended_rows_dir(objects_out, DIRECTORY)
     tasks, kept = [], 0
     for path in sorted(objects_dir.glob("*.npz")):
@@ -173,6 +145,6 @@ def run_wrap_stage(objects_out, mesh_dirs, per_object=32, max_turn_deg=20.0, max
             if not (t["grasped"] & (t["mode"] == MODE_NAMES.index("precision"))).any():
                 continue
         tasks.append(WrapTask(path.stem, str(path), str(out), tuple(mesh_dirs), per_object, max_turn_deg,
-                              max_depth_m, clearance_m, seed, select))
+                              max_depth_m, clearance_m, seed))
     return run_per_object(run_wrap_task, tasks, kept, ("tried", "held", "power"), "toward the palm", workers,
                           progress)
