@@ -121,3 +121,17 @@ def test_two_rescored_tables_are_compared_row_by_row(tmp_path, capsys):
     write(tmp_path / "other", [[1] * 6] * 2, [True, True], X=2 * np.eye(4))
     assert ts.main(["--compare-tables", str(tmp_path / "locked"), str(tmp_path / "other")]) == 2
     assert "other candidates" in capsys.readouterr().err
+
+
+def test_locked_ramps_on_a_committed_table_stay_finite_and_in_the_hand():
+    """The study's stability check on two held rows of a committed table (the 43 mm
+    procedural cube): every ramp finite, the object still in the hand after a locked idle hold."""
+    import pathlib
+
+    from sim_bridge.studies import transmission_study as ts
+
+    path = pathlib.Path(__file__).resolve().parents[2] / "models" / "grasp_tables_v3" / "objects" / "proc0_00012.npz"
+    held = tuple(int(r) for r in np.flatnonzero(np.load(path)["grasped"])[:2])
+    rows = ts.run_stability(ts.StabilityTask(str(path), held, ()))
+    assert [r["grasped"] for r in rows] == [True, True]
+    assert all(r["finite"] and r["ramps"] == 6 and r["idle_moved_m"] < ts.SNAP_OUT_M for r in rows), rows
