@@ -102,9 +102,6 @@ class TransmissionLock(LeafSystem):
     def engaged(self, root_context) -> bool:
         return bool(self.GetMyContextFromRoot(root_context).get_discrete_state(self._lock).GetAtIndex(0))
 
-    def lock_angle_rad(self, root_context) -> float:
-        return float(self.GetMyContextFromRoot(root_context).get_discrete_state(self._lock).GetAtIndex(1))
-
 
 def add_transmission_lock(builder, plant, hand, time_step_s, grip_torque_nm, **gains) -> TransmissionLock:
     """Add the lock to `builder` for a finalized `plant` and wire it (state in, desired
