@@ -11,16 +11,7 @@ from gravgrasp_detector.execution import executor as grasp_execution
 from gravgrasp_detector.perception import detection, hand_clearance, networks, rotation
 from gravgrasp_detector.perception.tsdf import InputError
 
-VS = 0.0075
-R = 40
-
-
-def table_grid():
-    """A table surface between k=6 and k=7: behind-surface band below, free band above."""
-    grid = np.zeros((R, R, R), np.float32)
-    grid[:, :, 3:7] = 0.3
-    grid[:, :, 7:11] = 0.7
-    return torch.from_numpy(grid)
+from tabletop_grid import R, VS, table_grid  # noqa: F401  (tests/support)
 
 
 def top_down_channels(index):
