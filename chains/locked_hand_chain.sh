@@ -8,7 +8,8 @@
 #      at the label settings' ramp (400 N/s to a 200 N cap: v3's 800 N/s to 100 N capped the
 #      wraps the lock holds; `datagen rescore`, ~32 CPU-h), then their power grasps made as the paper makes them
 #      (`datagen wrap`, 32 per object, ~6 CPU-h), then the mode-payload study on them.
-# A and B run side by side, one worker each. One line per session resumes both:
+# A and B run side by side, one worker each (CELL_WORKERS=2 or TABLE_WORKERS=2 gives one of them
+# both cores while the other is stopped: the workers change no result). One line per session resumes both:
 #   ros_ws/run_pinned.sh COMMIT out/locked_hand.log -- out/pinned/<COMMIT:12>/chains/locked_hand_chain.sh [cell|tables|cell,tables]
 # (or make chain RECIPE=locked_hand_chain.sh ARGS=cell PIN=COMMIT). The job begun on a1d39ee0a111,
 # from before chains/, runs that commit's copy in sim_bridge/scripts/; resume it, part by part, with
@@ -31,7 +32,7 @@ cell() {
     say "A: the locked cell, $kg kg"
     python -m sim_bridge.benchmark.clutter_benchmark --out "$locked" --scenes 32 --weights "$kg" \
       --methods ours,ours_precision,binary --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
-      --drive self_locking --workers 1 --no-progress || say "A: some rounds failed (a rerun retries them)"
+      --drive self_locking --workers "${CELL_WORKERS:-1}" --no-progress || say "A: some rounds failed (a rerun retries them)"
   done
   python -m sim_bridge.benchmark.clutter_benchmark --out "$locked" --scenes 32 --weights 1.5,4.0 \
     --methods ours,ours_precision,binary --meshes "$meshes" --only models/vgn_heldout_meshes.txt \
@@ -43,10 +44,10 @@ tables_v6() {
   say "B: rescore $tables"
   python -m sim_bridge.datagen rescore --objects models/grasp_tables_v3 --out "$tables" --meshes "$meshes" \
     --sim-setting drive=self_locking --sim-setting force_ramp_rate_n_s=400 --sim-setting max_force_n=200 \
-    --workers 1 --no-progress || say "B: some tables failed (a rerun retries them)"
+    --workers "${TABLE_WORKERS:-1}" --no-progress || say "B: some tables failed (a rerun retries them)"
   say "B: toward the palm"
   python -m sim_bridge.datagen wrap --objects "$tables" --meshes "$meshes" \
-    --per-object 32 --workers 1 --no-progress || say "B: some objects failed (a rerun retries them)"
+    --per-object 32 --workers "${TABLE_WORKERS:-1}" --no-progress || say "B: some objects failed (a rerun retries them)"
   python -m sim_bridge.studies.mode_payload_study --tables "$tables" --out sim_bridge/results/mode_payload_study_v6.json
   say "B: done"
 }
