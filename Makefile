@@ -29,7 +29,7 @@ help:
 	@echo "make lever-guarded - issue 42's execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
 	@echo "make lever-selection METHOD=ours_precision_sure - issue 42's selection levers: one registered method beside the committed Ours, Binary, Ours-Precision rounds (~80 min; pinned, background, resumable)"
 	@echo "make lever-decisive METHOD=... [PRODUCT=ours] [SCREEN=binary_scored] - issue 42's decisive runs of the chosen lever: 32 scenes on both tuning sets, then PRODUCT (default METHOD) there at 0.1-4 kg and on procedural seed 2000 once, SCREEN at 0.1/1.5 kg on the same 32 scenes (~14 h; pinned, background, resumable)"
-	@echo "make chain RECIPE=<file of chains/> [ARGS=...] [PIN=commit] - a long-job recipe, pinned to a commit, in the background (resumable)"
+	@echo "make chain RECIPE=<file of sim_bridge/chains/> [ARGS=...] [PIN=commit] - a long-job recipe, pinned to a commit, in the background (resumable)"
 	@echo "make baselines-figure - SR/CR vs weight of every method, held-out and procedural side by side, and the table, from the rounds so far"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
 	@echo "make data-report   - summary of TABLES (models/grasp_tables_v3) and REPORT_SCENES (out/scenes_v4: make data-scenes-v4)"
@@ -117,7 +117,7 @@ benchmark-quick: setup
 # Benchmark v2 (issue 16): 16 scenes x 0.1/0.5/1.5 kg on two object sets the models never
 # trained on, the 48 held-out VGN meshes and unseen procedural objects (procedural seed
 # 1000); 176 rounds per object set (Ours, Binary and Ours-Precision at each weight, the two
-# rotation ablations at 0.5 kg; chains/benchmark_chain.sh adds ours_expected: 224), ~2.3 min
+# rotation ablations at 0.5 kg; sim_bridge/chains/benchmark_chain.sh adds ours_expected: 224), ~2.3 min
 # a round on 2 cores (v4): ~14 h in all, resumable. v1's README run was --scenes 8 into out/benchmark.
 BENCH_SIZE ?= --scenes 16 --weights 0.1,0.5,1.5 --ablation-weights 0.5
 .PHONY: benchmark-heldout benchmark-procedural
@@ -134,17 +134,19 @@ benchmark-procedural: setup
 # 256 rounds, ~69k CPU-s estimated, ~10 h on 2 free cores. Pinned to PIN in the background
 # (log: out/benchmark_baselines.log); resumable: rerun with PIN=<the commit it started on>.
 PIN ?= HEAD
-# $(call pinned_chain,LOG,RECIPE [ARGS]): chains/RECIPE of commit PIN, in the background (a commit
-# from before chains/ keeps its recipes in sim_bridge/scripts/: a resumed job runs its own)
+# $(call pinned_chain,LOG,RECIPE [ARGS]): sim_bridge/chains/RECIPE of commit PIN, in the background (an
+# older commit keeps its recipes in chains/ or sim_bridge/scripts/: a resumed job runs its own)
 pinned_chain = c=$$(git rev-parse --verify --quiet "$(PIN)^{commit}") || { echo "PIN=$(PIN) names no commit" >&2; exit 2; }; \
-	  r=$$(set -- $(2); echo $$1); d=chains; git cat-file -e "$$c:chains/$$r" 2>/dev/null || d=sim_bridge/scripts; \
+	  r=$$(set -- $(2); echo $$1); for d in sim_bridge/chains chains sim_bridge/scripts; do \
+	    git cat-file -e "$$c:$$d/$$r" 2>/dev/null && break; done; \
+	  git cat-file -e "$$c:$$d/$$r" 2>/dev/null || { echo "commit $${c:0:12} has no recipe $$r" >&2; exit 2; }; \
 	  ros_ws/run_pinned.sh $$c $(1) -- out/pinned/$${c:0:12}/$$d/$(2)
-# Any long-job recipe of chains/ (one per run; each says what it runs and how long), pinned to
+# Any long-job recipe of sim_bridge/chains/ (one per run; each says what it runs and how long), pinned to
 # PIN, log out/<RECIPE>.log: make chain RECIPE=locked_hand_chain.sh ARGS=cell PIN=<its commit>
 # resumes a stopped one (the recipes' data commands skip what is done).
 .PHONY: chain
 chain:
-	@[ -n "$(RECIPE)" ] || { echo "make chain RECIPE=<a file of chains/> [ARGS=...] [PIN=commit]: $$(ls chains | tr '\n' ' ')" >&2; exit 2; }
+	@[ -n "$(RECIPE)" ] || { echo "make chain RECIPE=<a file of sim_bridge/chains/> [ARGS=...] [PIN=commit]: $$(ls sim_bridge/chains | tr '\n' ' ')" >&2; exit 2; }
 	@$(call pinned_chain,out/$(basename $(RECIPE)).log,$(RECIPE) $(ARGS))
 .PHONY: benchmark-baselines baselines-figure
 benchmark-baselines: setup
@@ -197,7 +199,7 @@ data-report: setup
 # Dataset v4 (issue 15's labels per scene): the v2 tables grown in place to TABLES_V3_GRASPS
 # candidates (models/grasp_tables_v3, committed; its first 256 rows are v2's) and the v3
 # scenes relabelled from their committed recipes with them (the same settled scenes, no
-# physics, ~1 CPU-s a scene). chains/dataset_v4_chain.sh runs both, then training.
+# physics, ~1 CPU-s a scene). sim_bridge/chains/dataset_v4_chain.sh runs both, then training.
 TABLES_V3_GRASPS ?= 320
 .PHONY: data-tables-v3 data-scenes-v4 data-tables-v5 data-scenes-v5
 data-tables-v3: setup
@@ -207,7 +209,7 @@ data-tables-v3: setup
 data-scenes-v4: setup
 	@$(ROS) ros2 run sim_bridge datagen recipes restore models/scene_recipes_v3 out/scenes_v4 \
 	  --objects models/grasp_tables_v3 --meshes $(CURDIR)/../shared/meshes/vgn_train --workers $(WORKERS) --relabel
-# v5 = v4's tables (copied once) + perturbed rows beside them (chains/dataset_v5_chain.sh runs both and trains)
+# v5 = v4's tables (copied once) + perturbed rows beside them (sim_bridge/chains/dataset_v5_chain.sh runs both and trains)
 PERTURBED_PER_OBJECT ?= 32
 data-tables-v5: setup
 	@[ -d models/grasp_tables_v5/objects ] || { mkdir -p models/grasp_tables_v5 && \
@@ -273,7 +275,7 @@ data-scenes-v1: setup
 # (v1: out/scenes_v1, make data-scenes-v1; the shipped v2 models: TRAIN_DATA=out/scenes_v2
 # EPOCHS=15 TRAIN_ARGS='--negative-weight=250 --max-scenes=1580', i.e. scenes 0-1579 of the
 # 128-candidate tables; the v3 models: TRAIN_DATA=out/scenes_v3 TRAIN_OUT=out/training_v3 EPOCHS=15
-# TRAIN_ARGS=--negative-weight=250, what chains/dataset_v3_chain.sh runs, so that this copies its
+# TRAIN_ARGS=--negative-weight=250, what sim_bridge/chains/dataset_v3_chain.sh runs, so that this copies its
 # finished models). Each run resumes from TRAIN_OUT/<variant>/checkpoint.pt; on a GPU
 # machine `train` runs on CUDA (gravgrasp_detector README, *On a GPU machine*).
 # bf16 autocast only where the CPU has AMX (elsewhere it is emulated, slower than fp32).

@@ -59,7 +59,7 @@ LEVERS = (
      "binary_scored",
      {HELDOUT: "heldout_v4_decisive", PROCEDURAL: "procedural_v4_decisive"}),
 )
-# The decisive runs (chains/decisive_chain.sh) of the lever the rule in levers.md chose and
+# The decisive runs (sim_bridge/chains/decisive_chain.sh) of the lever the rule in levers.md chose and
 # of the product that ships (the shipped Ours: the lever was not adopted), each
 # (method, objects, run, tuning scenes left out: the first 16 are the ones the lever was chosen on).
 LEVER, PRODUCT = "ours_precision_sure", "ours"

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The clutter-removal benchmark of the shipped models (models/*.pt), resumable; one line per
 # session:
-#   ros_ws/run_pinned.sh COMMIT out/benchmark.log -- out/pinned/<COMMIT:12>/chains/benchmark_chain.sh VERSION
+#   ros_ws/run_pinned.sh COMMIT out/benchmark.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/benchmark_chain.sh VERSION
 # VERSION names the result directories, sim_bridge/results/heldout_<VERSION> and
 # procedural_<VERSION> (commit their rounds as they come). A round records its model's
 # sha256 and is redone for another model, so ship the models before starting.
@@ -14,7 +14,7 @@
 # procedural ones. Scene-major order: a step cut short has every method on the same scenes.
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 1 ] || { echo "usage: chains/benchmark_chain.sh VERSION (e.g. v5)" >&2; exit 2; }
+[ $# -eq 1 ] || { echo "usage: sim_bridge/chains/benchmark_chain.sh VERSION (e.g. v5)" >&2; exit 2; }
 version="$1"
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"

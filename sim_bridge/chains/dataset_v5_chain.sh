@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Dataset v5: the v4 labels plus grasps at the edge of holding (`datagen perturb`), to test
 # whether validness learns where a grasp stops holding. One line per session resumes it:
-#   ros_ws/run_pinned.sh COMMIT out/dataset_v5.log -- out/pinned/<COMMIT:12>/chains/dataset_v5_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/dataset_v5.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/dataset_v5_chain.sh
 # Why: v4's 11.5 % more labels of the same kind bought nothing on validation, and the
 # benchmark's confident misses sit ~15 mm from poses that hold (sim_bridge README, *Why did an
 # attempt fail?*; perturbation_study: 15 mm across the pads 71 % still hold, shallower 66 %).

@@ -9,11 +9,11 @@
 # Each report pairs Ours with Binary per scene under the guarded approach; against the
 # unguarded rounds of the same scenes: python -m sim_bridge.analysis.run_vs_run (benchmark.md).
 # One line per session resumes it (`make lever-guarded PIN=<the commit it started on>`):
-#   ros_ws/run_pinned.sh COMMIT out/guarded_lever.log -- out/pinned/<COMMIT:12>/chains/guarded_lever_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/guarded_lever.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/guarded_lever_chain.sh
 # Commit the rounds as they come: git add sim_bridge/results/*_v4_guarded_approach && git commit -m "..."
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 0 ] || { echo "usage: chains/guarded_lever_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 0 ] || { echo "usage: sim_bridge/chains/guarded_lever_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
 size=(--scenes 16 --weights 0.1,1.5 --methods ours,binary --close-on-contact-within-m 0.01)

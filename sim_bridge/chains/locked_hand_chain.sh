@@ -10,9 +10,9 @@
 #      (`datagen wrap`, 32 per object, ~6 CPU-h), then the mode-payload study on them.
 # A and B run side by side, one worker each (CELL_WORKERS=2 or TABLE_WORKERS=2 gives one of them
 # both cores while the other is stopped: the workers change no result). One line per session resumes both:
-#   ros_ws/run_pinned.sh COMMIT out/locked_hand.log -- out/pinned/<COMMIT:12>/chains/locked_hand_chain.sh [cell|tables|cell,tables]
+#   ros_ws/run_pinned.sh COMMIT out/locked_hand.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/locked_hand_chain.sh [cell|tables|cell,tables]
 # (or make chain RECIPE=locked_hand_chain.sh ARGS=cell PIN=COMMIT). The job begun on a1d39ee0a111,
-# from before chains/, runs that commit's copy in sim_bridge/scripts/; resume it, part by part, with
+# from before the recipes had a folder, runs that commit's copy in sim_bridge/scripts/; resume it, part by part, with
 #   ros_ws/run_pinned.sh a1d39ee0a111 out/locked_hand.log -- out/pinned/a1d39ee0a111/sim_bridge/scripts/locked_hand_chain.sh cell
 # Commit what has finished as it comes (rounds of A; B's tables object by object):
 #   git add sim_bridge/results/heldout_v4_locked models/grasp_tables_v6

@@ -3,7 +3,7 @@
 # VGN and VN-EdgeGraspNet (published weights, Panda hand) and VGN's grasps on the 2F-85,
 # on the same scenes and protocol as the committed 2F-85 rounds of Ours, Binary and
 # Ours-Precision, which are copied, not rerun. Resumable; `make benchmark-baselines` starts
-#   ros_ws/run_pinned.sh COMMIT out/benchmark_baselines.log -- out/pinned/<COMMIT:12>/chains/baselines_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/benchmark_baselines.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/baselines_chain.sh
 # Into sim_bridge/results/baselines_heldout (from heldout_v4: the 48 held-out meshes) and
 # baselines_procedural (from procedural_v4: procedural seed 1000), 16 scenes each:
 # vgn and vn_edge at 0.1, 0.5 and 1.5 kg, vgn_2f85 at 0.1 and 1.5 kg: 128 rounds a set.
@@ -19,7 +19,7 @@
 # figure also any time: python -m sim_bridge.benchmark.baselines_figure).
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 0 ] || { echo "usage: chains/baselines_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 0 ] || { echo "usage: sim_bridge/chains/baselines_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
 copied=ours,binary,ours_precision  # the 2F-85 methods whose committed rounds are paired

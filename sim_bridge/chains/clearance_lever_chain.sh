@@ -3,7 +3,7 @@
 # at label time (`train --label-clearance`, gravgrasp_detector/doc/training.md), then a
 # 16-scene lever run of it beside the committed Ours and Binary rounds of the same scenes.
 # One line per session resumes it (every step resumes where it stopped):
-#   ros_ws/run_pinned.sh COMMIT out/clearance_lever.log -- out/pinned/<COMMIT:12>/chains/clearance_lever_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/clearance_lever.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/clearance_lever_chain.sh
 # 1. out/scenes_v4: the 5,000 v4 training scenes restored from the committed recipes and
 #    tables (no physics; ~1 CPU-s a scene, ~45 min on 2 cores);
 # 2. out/training_v4/ours_clearance: the shipped Ours' command (models/gravgrasp.md) plus
@@ -17,7 +17,7 @@
 # Both tuning sets, as the issue asks; a fresh seed only for the final choice.
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 0 ] || { echo "usage: chains/clearance_lever_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 0 ] || { echo "usage: sim_bridge/chains/clearance_lever_chain.sh (no arguments; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root
 workers="${WORKERS:-2}"
 run=out/training_v4/ours_clearance

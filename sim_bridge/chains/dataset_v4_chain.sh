@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Dataset v4: the v3 scenes relabelled from grown grasp tables, for issue 15's labels per
 # scene (v3: median 142 < 150). One line per session resumes it:
-#   ros_ws/run_pinned.sh COMMIT out/dataset_v4.log -- out/pinned/<COMMIT:12>/chains/dataset_v4_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/dataset_v4.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/dataset_v4_chain.sh
 # 1. models/grasp_tables_v3 (committed; a copy of v2 to start from) grows from 256 to 320
 #    candidates per object (CANDIDATES=384 grows it further later: the same seed and blocks,
 #    so the first 256 are v2's own and 320 then 384 gives what 384 at once would).
@@ -22,7 +22,7 @@
 #    each alone on the 2-core EPYC; copy them to models/ with their cards by hand, and commit
 #    them: a retrained model has another sha256, and the benchmark redoes every round of a
 #    model it has not seen);
-# 5. the benchmark of the shipped models: chains/benchmark_chain.sh v4 (its own line per
+# 5. the benchmark of the shipped models: sim_bridge/chains/benchmark_chain.sh v4 (its own line per
 #    session, as it runs for days; it needs the models copied to models/ first).
 set -euo pipefail
 export PYTHONUNBUFFERED=1  # the log shows each epoch when it ends, not in 4 KiB bursts
@@ -61,4 +61,4 @@ train_variants() {  # train_variants VARIANT...: those of `variants`, in that or
     [[ " $* " == *" $variant "* ]] && train "$variant" "$file" $option; done; return 0
 }
 train_variants ours binary precision_only ey_ez quat
-echo "[chain] $(date -u +%FT%TZ) done: copy the models to models/, then chains/benchmark_chain.sh v4"
+echo "[chain] $(date -u +%FT%TZ) done: copy the models to models/, then sim_bridge/chains/benchmark_chain.sh v4"

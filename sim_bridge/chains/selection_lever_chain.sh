@@ -9,11 +9,11 @@
 # (paired_run), then METHOD runs at 0.1 and 1.5 kg (32 rounds a set, ~40 min on 2 cores);
 # its report pairs them all with Binary per scene (doc/levers.md reads it).
 # One line per session resumes it (`make lever-selection METHOD=... PIN=<the commit it started on>`):
-#   ros_ws/run_pinned.sh COMMIT out/lever_METHOD.log -- out/pinned/<COMMIT:12>/chains/selection_lever_chain.sh METHOD
+#   ros_ws/run_pinned.sh COMMIT out/lever_METHOD.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/selection_lever_chain.sh METHOD
 # Commit the rounds as they come: git add sim_bridge/results/*_v4_<LEVER> && git commit -m "..."
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 1 ] || { echo "usage: chains/selection_lever_chain.sh METHOD (a registered method, e.g. ours_precision_sure; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
+[ $# -eq 1 ] || { echo "usage: sim_bridge/chains/selection_lever_chain.sh METHOD (a registered method, e.g. ours_precision_sure; WORKERS=2 MESHES=DIR)" >&2; exit 2; }
 method="$1"
 lever="${method#ours_}"
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root

@@ -22,11 +22,11 @@
 #      (it was step 2 until the lever failed step 1; its first rounds are kept)
 # ~1.4 min a round on 2 cores, ~12 h in all: one line per session resumes it
 # (`make lever-decisive METHOD=... [PRODUCT=...] [SCREEN=...] PIN=<the commit it started on>`):
-#   ros_ws/run_pinned.sh COMMIT out/decisive_METHOD.log -- out/pinned/<COMMIT:12>/chains/decisive_chain.sh METHOD [PRODUCT]
+#   ros_ws/run_pinned.sh COMMIT out/decisive_METHOD.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/decisive_chain.sh METHOD [PRODUCT]
 # Commit the rounds as they come: git add sim_bridge/results/*_decisive sim_bridge/results/procedural_s2000_confirm
 set -euo pipefail
 export PYTHONUNBUFFERED=1
-[ $# -eq 1 ] || [ $# -eq 2 ] || { echo "usage: chains/decisive_chain.sh METHOD [PRODUCT] (the chosen lever, e.g. ours_sure; the method steps 2-5 run, default METHOD; WORKERS=2 MESHES=DIR SCREEN=METHODS)" >&2; exit 2; }
+[ $# -eq 1 ] || [ $# -eq 2 ] || { echo "usage: sim_bridge/chains/decisive_chain.sh METHOD [PRODUCT] (the chosen lever, e.g. ours_sure; the method steps 2-5 run, default METHOD; WORKERS=2 MESHES=DIR SCREEN=METHODS)" >&2; exit 2; }
 method="$1"
 product="${2:-$1}"
 meshes="${MESHES:-$PWD/../shared/meshes/vgn_train}"  # run_pinned.sh starts it in the project root

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The v3 dataset, models and benchmark from where they stand to the end, each step resuming
 # where it stopped, so that one line per session keeps the CPU busy across the steps:
-#   ros_ws/run_pinned.sh COMMIT out/dataset_v3.log -- out/pinned/<COMMIT:12>/chains/dataset_v3_chain.sh
+#   ros_ws/run_pinned.sh COMMIT out/dataset_v3.log -- out/pinned/<COMMIT:12>/sim_bridge/chains/dataset_v3_chain.sh
 # A session's machine (and so out/) may be new: what must survive goes where git can keep
 # it. The held-out benchmark writes into sim_bridge/results/heldout (small JSON; commit its
 # rounds as they come: a rerun skips every round whose model file has the recorded sha256).
