@@ -63,3 +63,21 @@ def test_the_scenes_a_run_needs_grow_with_the_spread_of_the_per_scene_difference
     (c,) = paired.compare_paired([rnd("ours", "a", 2, 2), rnd("binary", "a", 1, 2),
                                   rnd("ours", "b", 0, 2), rnd("binary", "b", 2, 2)])
     assert c["scenes_for_10pts"] == paired.scenes_needed([0.5, -1.0])
+
+
+def test_the_power_grasp_effect_is_ours_against_ours_precision_and_leaves_binary_out():
+    rounds = [rnd("ours", "a", 2, 2, 4.0), rnd("ours_precision", "a", 0, 2, 4.0),  # +1.0
+              rnd("ours", "b", 2, 2, 4.0), rnd("ours_precision", "b", 1, 2, 4.0),  # +0.5
+              rnd("binary", "a", 0, 2, 4.0), rnd("binary", "b", 0, 2, 4.0),
+              rnd("ours", "a", 1, 1, 0.1)]  # Ours-Precision did not run 0.1 kg: no entry
+    (c,) = paired.power_grasp_effect(rounds)
+    assert (c["method"], c["reference"], c["mass_kg"], c["scenes"]) == ("ours", "ours_precision", 4.0, 2)
+    assert c["diff"] == pytest.approx(0.75) and c["p_value"] == pytest.approx(0.5)  # 2 of 4 flips as far
+    assert paired.power_grasp_effect([r for r in rounds if r["method"] != "ours_precision"]) == []
+
+
+def test_the_committed_decisive_rounds_give_the_power_grasp_effect_the_docs_quote():
+    # results.md of the decisive held-out run: Ours − Ours-Precision at 4 kg, 32 scenes
+    rounds = run_files.rounds_file(ROOT / "sim_bridge/results/heldout_v4_decisive").records()
+    found = {c["mass_kg"]: c for c in paired.power_grasp_effect(rounds)}
+    assert found[4.0]["scenes"] == 32 and round(100 * found[4.0]["diff"], 1) == -4.0

@@ -31,7 +31,9 @@ Protocol (one *round* = one method, one object weight, one scene):
   Wilson intervals; each method's SR against Binary's at the same weight, per scene and
   paired (which decides: a sign-flip permutation test over the scenes' SR differences,
   benchmark/paired.py, printed `p_paired_<method>_vs_binary_<kg>=`) and pooled (a
-  two-proportion z test over attempts, `p_<method>_vs_binary_<kg>=`); results.md. For
+  two-proportion z test over attempts, `p_<method>_vs_binary_<kg>=`); Ours against
+  Ours-Precision the same way, the paper's power-grasp effect
+  (`p_paired_ours_vs_ours_precision_<kg>=`, power_grasp_effect.json); results.md. For
   planning: the scenes a paired run would need to find a 10-point difference at p < 0.05
   with 80 % power, from the spread of this run's per-scene differences
   (`scenes_for_10pts_<method>_vs_binary_<kg>=`).
@@ -241,6 +243,11 @@ def main(argv=None) -> int:
             if not math.isnan(c["paired"].get("scenes_for_10pts", math.nan)):  # older comparisons.json lack it
                 print(f"scenes_for_10pts_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}="
                       f"{c['paired']['scenes_for_10pts']:.0f}")
+    effect_file = pathlib.Path(out) / "power_grasp_effect.json"
+    for c in json.loads(effect_file.read_text()) if effect_file.exists() else []:
+        if not math.isnan(c["diff"]):
+            print(f"diff_ours_vs_ours_precision_{weight_key(c['mass_kg'])}={c['diff']:+.3f}")
+            print(f"p_paired_ours_vs_ours_precision_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
     for r in rows:
         print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
     return 1 if missing and not args.report else 0

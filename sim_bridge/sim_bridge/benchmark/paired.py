@@ -84,3 +84,16 @@ def compare_paired(rounds: list, reference: str = "binary") -> list:
                     "ci95": bootstrap_ci(diffs), "p_value": sign_flip_p(diffs),
                     "scenes_for_10pts": scenes_needed(diffs)})
     return out
+
+
+# The paper's power-grasp effect: Ours against the same network trained on precision grasps
+# only (its Table I); the method is the first, the reference the second.
+POWER_GRASP_PAIR = ("ours", "ours_precision")
+
+
+def power_grasp_effect(rounds: list) -> list:
+    """compare_paired of Ours against Ours-Precision at each weight both ran (the
+    entries of compare_paired, method "ours", reference "ours_precision"); [] when
+    either did not run."""
+    method, reference = POWER_GRASP_PAIR
+    return compare_paired([r for r in rounds if r["method"] in POWER_GRASP_PAIR], reference=reference)

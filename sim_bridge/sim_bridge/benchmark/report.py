@@ -1,6 +1,6 @@
 """The benchmark's outputs: SR/CR with Wilson intervals per method and weight, each
-method's SR against Binary (two-proportion test), results.md, the summaries and the
-SR/CR-vs-weight plot."""
+method's SR against Binary (two-proportion test), Ours against Ours-Precision (the paper's
+power-grasp effect), results.md, the summaries and the SR/CR-vs-weight plot."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from gravgrasp_detector.execution.executor import GraspExecutor
 from ..physics.scenes import ARRANGEMENTS
 from . import failed_rounds, run_files
 from .clearing import success_rates
-from .paired import compare_paired
+from .paired import compare_paired, power_grasp_effect
 from .protocol import OBJECTS_PER_SCENE, PROCEDURAL_SEED, SCHEMA_VERSION, drive_of, execution_name, execution_of
 
 # statistics
@@ -130,6 +130,8 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
     atomic_files.save_json(out / "results.json", rows)
     comparisons = with_paired(compare_to(rows), compare_paired(rounds))
     atomic_files.save_json(out / "comparisons.json", comparisons)
+    power_effect = power_grasp_effect(rounds)
+    atomic_files.save_json(out / "power_grasp_effect.json", power_effect)
     objects = (f"procedural (seed {procedural_seed})" if not meshes_dir else f"meshes in {os.path.relpath(os.path.realpath(meshes_dir))}"
                + (f", only the {len(only)} listed in --only" if only is not None else ""))
     expected = len(ids)
@@ -157,6 +159,8 @@ def write_outputs(out, plan, shas, ids, excluded, protocol, meshes_dir, only=Non
         lines += ["", "No rounds (not run, or not yet): " + "; ".join(
             f"{m} at {', '.join(f'{w:g}' for w in ws)} kg" for m, ws in no_rounds.items()) + "."]
     lines += ["", *comparison_lines([c for c in comparisons if c["mass_kg"] not in no_rounds.get(c["method"], ())])]
+    if power_effect:
+        lines += ["", *power_effect_lines(power_effect)]
     lines += ["", *outcome_lines(rounds, plan)]
     lines += ["", *mode_lines(rounds, plan)]
     if protocol.close_on_contact_within_m > 0:
@@ -203,6 +207,21 @@ def comparison_lines(comparisons) -> list:
         pc = c.get("paired")
         lines.append(f"| {c['method']} | {c['mass_kg']:g} | {pc['scenes'] if pc else 0} | "
                      + " | ".join(cells(pc) + cells(c)) + " |")
+    return lines
+
+
+def power_effect_lines(effect) -> list:
+    """Markdown table: Ours − Ours-Precision per scene, paired (paired.power_grasp_effect)."""
+    lines = ["The power-grasp effect: Ours against the same network trained on precision grasps only "
+             "(Ours-Precision), per scene, paired, over the scenes both ran (as above).", "",
+             "| weight [kg] | scenes | per scene: SR ours − SR ours_precision | 95 % CI | p |",
+             "| --- | --- | --- | --- | --- |"]
+    for c in effect:
+        if math.isnan(c["diff"]):
+            lines.append(f"| {c['mass_kg']:g} | 0 | — | — | — |")
+            continue
+        lines.append(f"| {c['mass_kg']:g} | {c['scenes']} | {100 * c['diff']:+.1f} pts | "
+                     f"{100 * c['ci95'][0]:+.1f} to {100 * c['ci95'][1]:+.1f} | {c['p_value']:.3f} |")
     return lines
 
 
