@@ -8,7 +8,7 @@
 # 2. Ours, Binary and Ours-Precision v6 (the v4 schedule: 15 epochs, negatives at 250, ~1 h each on
 #    2 cores) into out/training_v6/<variant>, copied to models/v6/ with the v4 file names (so that
 #    `--models-dir models/v6` runs them under the same method names), each with its validation
-#    calibration (models/calibration/gravgrasp_v6*_on_v6_val_scenes.json) and v4's on the same scenes;
+#    calibration (models/calibration/<file stem>_v6_on_v6_val_scenes.json) and v4's on the same scenes;
 # 3. the decisive comparison under the locked cell, paired per scene, on the v4 decisive runs'
 #    scenes (so v6 pairs with v4 too): ours, ours_precision, binary at 4, 1.5 and 0.1 kg, 32 scenes
 #    of the held-out meshes (sim_bridge/results/heldout_v6_decisive), then of procedural seed 1000
@@ -48,12 +48,13 @@ train() {  # train VARIANT FILE [OPTION]: out/training_v6/VARIANT (resumes per e
   fi
   local stem="${2%.pt}"
   for m in "v6:$models/$2" "v4:models/$2"; do  # the v6 model and the shipped v4 one, on v6's validation scenes
-    name="${stem/gravgrasp/gravgrasp_${m%%:*}}_on_v6_val_scenes"
+    name="${stem}_${m%%:*}_on_v6_val_scenes"  # as models/calibration names v4's: gravgrasp_binary_v4_on_v4_val_scenes
     [ -f "models/calibration/$name.json" ] && continue
     say "calibration $name"
     python -m gravgrasp_detector.tools.score_calibration --model "${m#*:}" --data "$scenes" --split val \
       --out "out/calibration/$name"
-    mkdir -p models/calibration && cp "out/calibration/$name/calibration.json" "models/calibration/$name.json"
+    mkdir -p models/calibration && cp "out/calibration/$name/calibration.png" "models/calibration/$name.png" \
+      && cp "out/calibration/$name/calibration.json" "models/calibration/$name.json"
   done
 }
 train ours gravgrasp.pt
