@@ -48,3 +48,33 @@ def test_report_on_an_empty_directory_is_one_clear_line(tmp_path, capsys):
     assert main([str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "no grasp tables" in err and len(err.strip().splitlines()) == 1
+
+
+def test_report_counts_wraps_by_the_rule_and_the_toward_the_palm_rows(tmp_path, capsys):
+    from sim_bridge.datagen.object_grasps import CONTACT_LINK_NAMES
+    objects = tmp_path / "objects"
+    (objects / "toward_palm").mkdir(parents=True)
+    joints = np.asarray(["left_coupler", "right_coupler"])
+    palm = 1 << CONTACT_LINK_NAMES.index("base")
+    pad = 1 << CONTACT_LINK_NAMES.index("left_pad")
+
+    def rows(path, modes, contacts, couplers, own=True):
+        modes = np.asarray(modes, np.uint8)
+        extra = dict(mode_names=np.asarray(MODE_NAMES), contact_link_names=np.asarray(CONTACT_LINK_NAMES)) if own else {}
+        np.savez(path, mode=modes, grasped=modes != 2, scores_n=np.full((len(modes), 6), 20.0, np.float32),
+                 contacts=np.asarray(contacts, np.uint16), finger_joint_names=joints,
+                 finger_joint_angles=np.asarray(couplers, np.float32), **extra)
+    # held: a wrap (palm, both couplers 0.1 rad past their stop); palm but one coupler at its
+    # stop (recorded "power" by an older rule: not a wrap); a pad pinch; one not held
+    rows(objects / "a.npz", [0, 0, 1, 2], [palm, palm, pad, 0],
+         [[-0.1, -0.1], [-0.1, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    rows(objects / "toward_palm" / "a.npz", [0, 1], [palm | pad, palm], [[-0.2, -0.06], [-0.01, -0.3]], own=False)
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    np.savez(scenes / "000000.npz", label_score=np.array([30.0, 50.0, 10.0], np.float32),
+             label_mode=np.array([0, 0, 1], np.uint8), arrangement=np.asarray("pile"))
+    assert main([str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "wraps (held grasps meeting the wrap rule): 1 (33.3% of held)" in out
+    assert "toward-the-palm rows (datagen wrap) of 1 objects: 2 closed, 2 held, 1 wraps; with them: 2 wraps of 5 held" in out
+    assert "median 30.0 N (power 40.0 N, precision 10.0 N)" in out

@@ -2,8 +2,11 @@
 
 DIR is a datagen output directory (with objects/ and optionally scenes/) or a
 directory of grasp tables.  Prints objects, simulated and successful grasps, mode
-split, skipped objects with their reasons, score statistics per mode, labels per
-scene; writes a PNG with the score histograms per mode and the labels per scene.
+split, the wraps (held grasps that meet the wrap rule, physics.grasp_simulation.classify_mode,
+from each row's contacts and finger angles, whatever rule its table's mode used), the
+toward-the-palm rows of `datagen wrap`, skipped objects with their reasons, score
+statistics per mode, labels per scene and their gravity-rejection score per mode;
+writes a PNG with the score histograms per mode and the labels per scene.
 Scenes are read from DIR/scenes or from --scenes (the tables are committed under
 models/, the scenes are regenerated under out/).  The last four lines are
 machine-readable:
@@ -20,6 +23,9 @@ import sys
 import numpy as np
 
 from gravgrasp_detector import atomic_files
+from ..physics.grasp_simulation import classify_mode, wrap_angle_rad
+from .object_grasps import CONTACT_LINK_NAMES
+from .power_grasps import DIRECTORY as TOWARD_PALM
 
 
 def _tables_dir(d):
@@ -27,12 +33,28 @@ def _tables_dir(d):
     return d / "objects" if (d / "objects").is_dir() else d
 
 
+def wraps_of(table) -> np.ndarray:
+    """Per row of an open table (np.load): does the held grasp meet the wrap rule
+    (classify_mode on its contacts and finger angles)? None for a table without them."""
+    if not {"contacts", "finger_joint_angles", "finger_joint_names"} <= set(table.files):
+        return None
+    names = table["contact_link_names"] if "contact_link_names" in table.files else CONTACT_LINK_NAMES  # row files lack it
+    links, joints = [str(n) for n in names], [str(n) for n in table["finger_joint_names"]]
+    out = np.zeros(len(table["grasped"]), bool)
+    for i in np.flatnonzero(table["grasped"]):
+        touched = [n for k, n in enumerate(links) if int(table["contacts"][i]) >> k & 1]
+        angles = {n: float(a) for n, a in zip(joints, table["finger_joint_angles"][i]) if np.isfinite(a)}
+        out[i] = classify_mode(touched, wrap_angle_rad(angles)) == "power"
+    return out
+
+
 def collect(data_dir, scenes_dir=None):
     """Aggregate statistics of a data directory as a dict."""
     tdir = _tables_dir(data_dir)
     per_mode = {"power": [], "precision": []}
     stats = dict(objects=0, simulated=0, grasped=0, power=0, precision=0, sim_wall_time_s=0.0,
-                 grasped_per_object=[], skipped=[], perturbed={}, perturbed_objects=0)
+                 grasped_per_object=[], skipped=[], perturbed={}, perturbed_objects=0, wraps=0, without_wrap_measure=0,
+                 toward_palm=dict(objects=0, closed=0, held=0, wraps=0))
     table_rows = {}
     for p in sorted(tdir.glob("*.npz")):
         with np.load(p) as t:
@@ -48,6 +70,16 @@ def collect(data_dir, scenes_dir=None):
                 sel = grasped & (mode == names.index(m))
                 stats[m] += int(sel.sum())
                 per_mode[m].append(scores[sel])
+            wraps = wraps_of(t)
+            stats["wraps"] += int(wraps.sum()) if wraps is not None else 0
+            stats["without_wrap_measure"] += wraps is None
+    for p in sorted((tdir / TOWARD_PALM).glob("*.npz")):  # datagen wrap's rows (power_grasps)
+        with np.load(p) as t:
+            tp = stats["toward_palm"]
+            tp["objects"] += 1
+            tp["closed"] += len(t["grasped"])
+            tp["held"] += int(t["grasped"].sum())
+            tp["wraps"] += int(wraps_of(t).sum())  # the wrap stage always records contacts and angles
     for p in sorted(tdir.glob("*.skip.json")):
         stats["skipped"].append(json.loads(p.read_text()))
     for p in sorted((tdir / "perturbed").glob("*.npz")):  # datagen perturb's rows (perturbed_grasps)
@@ -82,7 +114,7 @@ def collect(data_dir, scenes_dir=None):
                 # n_grasps_collision_free counts the grasps that passed every check of the
                 # scene stage, the execution check included (dropped ones are already out)
                 valid.append(int(z["n_grasps_collision_free"]))
-    stats["labels_per_scene"] = np.asarray(labels)
+    stats["labels_per_scene"] = np.asarray(labels)  # fg: f_g of each label (Eq. 1 along gravity) [N]
     stats["label_scores"] = np.concatenate(fg) if fg else np.zeros(0)
     stats["label_modes"] = np.concatenate(fg_mode) if fg_mode else np.zeros(0, np.uint8)
     stats["arrangements"] = arrangements
@@ -101,6 +133,16 @@ def report_text(s):
     lines.append(f"grasp tables: {s['objects']} objects, {s['simulated']} simulated grasps, "
                  f"{g} held ({100 * g / max(1, s['simulated']):.1f}%)")
     lines.append(f"modes of held grasps: power {s['power']}, precision {s['precision']}")
+    if s["without_wrap_measure"] < s["objects"]:
+        lines.append(f"wraps (held grasps meeting the wrap rule): {s['wraps']} ({100 * s['wraps'] / max(1, g):.1f}% of held)"
+                     + (f"; {s['without_wrap_measure']} tables record no contacts or finger angles"
+                        if s["without_wrap_measure"] else ""))
+    tp = s["toward_palm"]
+    if tp["objects"]:
+        both = g + tp["held"]
+        lines.append(f"toward-the-palm rows (datagen wrap) of {tp['objects']} objects: {tp['closed']} closed, "
+                     f"{tp['held']} held, {tp['wraps']} wraps; with them: {s['wraps'] + tp['wraps']} wraps of "
+                     f"{both} held ({100 * (s['wraps'] + tp['wraps']) / max(1, both):.1f}%)")
     if s["sim_wall_time_s"] > 0:
         lines.append(f"simulation wall time: {s['sim_wall_time_s'] / 3600:.2f} core-hours, "
                      f"{3600 * s['simulated'] / s['sim_wall_time_s']:.0f} grasps per core-hour")
@@ -130,8 +172,11 @@ def report_text(s):
                      f"mean {n.mean():.1f}, median {np.median(n):.0f}, min {n.min()}, max {n.max()}; "
                      f"scenes without labels: {(n == 0).sum()}")
         if len(lf):
+            fg = s["label_scores"]
+            per_mode = ", ".join(f"{m} {np.median(fg[lf == k]):.1f} N" for k, m in enumerate(("power", "precision"))
+                                 if (lf == k).any())
             lines.append(f"labels: {len(lf)}, power {100 * (lf == 0).mean():.1f}%; gravity-rejection score "
-                         f"median {np.median(s['label_scores']):.1f} N")
+                         f"median {np.median(fg):.1f} N ({per_mode})")
         neg = s["negatives_per_scene"]
         lines.append(f"explicit validness negatives per scene: median {np.median(neg):.0f}, mean {neg.mean():.1f}")
         if s["perturbed"] and len(lf):
