@@ -8,7 +8,8 @@
 # 2. Ours, Binary and Ours-Precision v6 (the v4 schedule: 15 epochs, negatives at 250, ~1 h each on
 #    2 cores) into out/training_v6/<variant>, copied to models/v6/ with the v4 file names (so that
 #    `--models-dir models/v6` runs them under the same method names), each with its validation
-#    calibration (models/calibration/<file stem>_v6_on_v6_val_scenes.json) and v4's on the same scenes;
+#    calibration (models/calibration/<file stem>_v6_on_v6_val_scenes.json) and v4's on the same scenes,
+#    its qualitative slices and its card (models/v6/<file stem>.md, both calibrations side by side);
 # 3. the decisive comparison under the locked cell, paired per scene, on the v4 decisive runs'
 #    scenes (so v6 pairs with v4 too): ours, ours_precision, binary at 4, 1.5 and 0.1 kg, 32 scenes
 #    of the held-out meshes (sim_bridge/results/heldout_v6_decisive), then of procedural seed 1000
@@ -56,6 +57,12 @@ train() {  # train VARIANT FILE [OPTION]: out/training_v6/VARIANT (resumes per e
     mkdir -p models/calibration && cp "out/calibration/$name/calibration.png" "models/calibration/$name.png" \
       && cp "out/calibration/$name/calibration.json" "models/calibration/$name.json"
   done
+  local qualitative="$models/qualitative/$stem"  # the paper's Sec. V-A slices, linked from the card
+  [ -f "$qualitative/depth.png" ] || python -m sim_bridge.benchmark.qualitative --model "$models/$2" --out "$qualitative"
+  python -m gravgrasp_detector.tools.model_card "out/training_v6/$1" --model "$models/$2" --qualitative "$qualitative" \
+    --tables "$tables" --recipes models/scene_recipes_v3 \
+    --calibration "models/calibration/${stem}_v6_on_v6_val_scenes.json" \
+    --calibration "models/calibration/${stem}_v4_on_v6_val_scenes.json"
 }
 train ours gravgrasp.pt
 train binary gravgrasp_binary.pt --target=binary

@@ -113,3 +113,31 @@ def test_bad_inputs_are_one_line(run, tmp_path, capsys):
     assert len(err) == 2
     assert "is not the model of" in err[0]
     assert "history.json is missing" in err[1]
+
+
+def test_calibration_reports_stand_side_by_side_and_a_bad_one_is_one_line(run, tmp_path, capsys):
+    def report(model, precision, mae, label, negative):
+        picks = {"1": {"label": label, "negative": negative, "neither": 100 - label - negative}}
+        return {"model": model, "data": "out/scenes_v6", "scenes": 100, "split": "val",
+                "validness": {"precision": precision, "recall": 0.9, "threshold": 0.5, "auroc": 0.98},
+                "modes": {"all": {"mae_n": mae, "spearman": 0.6}, "power": {"mae_n": 2 * mae, "spearman": 0.5}},
+                "top_picks": {"score": picks, "expected_score": picks, "validness": picks}}
+    new, old = tmp_path / "v6.json", tmp_path / "v4.json"
+    new.write_text(json.dumps(report("models/v6/gravgrasp.pt", 0.21, 11.5, 61, 20)))
+    old.write_text(json.dumps(report("models/gravgrasp.pt", 0.15, 12.8, 44, 34)))
+    card = _card(run, "--calibration", str(new), "--calibration", str(old))
+    rows = {line.split("|")[1].strip(): line for line in card.splitlines() if line.startswith("| ")}
+    assert "`models/v6/gravgrasp.pt` on `out/scenes_v6`" in card and "`models/gravgrasp.pt` on" in card
+    assert rows["validness precision / recall (at its threshold)"].count("/ 0.900 (0.5)") == 2
+    assert "| 0.210 / 0.900 (0.5) | 0.150 / 0.900 (0.5) |" in rows["validness precision / recall (at its threshold)"]
+    assert "| 11.50 | 12.80 |" in rows["score MAE [N], all"] and "| 23.00 | 25.60 |" in rows["score MAE [N], power"]
+    assert "| — | — |" in rows["score MAE [N], precision"]  # not in the reports: a dash, not an error
+    assert "| 0.61 / 0.61 / 0.61 | 0.44 / 0.44 / 0.44 |" in rows[
+        "first pick on a held label, by score / validness × score / validness"]
+    assert "## Calibration" not in _card(run)  # only with --calibration
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"validness": {}}))
+    root, out, model = run
+    assert model_card.main([str(out), "--model", str(model), "--calibration", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a score_calibration report" in err[0] and "calibration.json" in err[0]

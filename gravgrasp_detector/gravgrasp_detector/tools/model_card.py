@@ -12,6 +12,11 @@ directory (RUN_DIR: model.pt, history.json, training_curve.png as `train` writes
   the training curve, copied beside the card (<model stem>_training_curve.png): the run
   directory is usually under out/, which a clone does not have.
 - Validation metrics: final and best epoch of history.json.
+- Calibration (with --calibration, repeatable): `score_calibration` reports side by side,
+  e.g. this model's and the shipped model's on the same validation scenes: validness
+  precision and recall at the threshold, AUROC, score MAE and Spearman per mode, and where
+  the first pick of a scene lands (a held label, a known failure) by score, validness x
+  score and validness.
 - Qualitative check: the PNGs of `make qualitative` (out/qualitative/<model stem>/)
   and a paragraph for what a person saw in them. That paragraph (between the
   human-notes markers) is kept when the card is regenerated.
@@ -51,6 +56,10 @@ METRICS = (
     ("val_loss_total", "validation loss (total)", min),
 )
 SLICE_PNGS = ("slice_z150mm.png", "slice_z080mm.png", "slice_y000mm.png", "depth.png")
+
+
+# the first-pick rankings of score_calibration's top_picks, as the card names them
+PICK_RANKINGS = (("score", "score"), ("expected_score", "validness × score"), ("validness", "validness"))
 
 
 class CardError(RuntimeError):
@@ -162,7 +171,55 @@ def human_notes(existing_card):
     return HUMAN_PLACEHOLDER
 
 
-def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, argv=None, recipes=None):
+def load_calibration(path) -> dict:
+    """A score_calibration JSON (calibration.json); CardError naming what is wrong."""
+    try:
+        report = json.loads(pathlib.Path(path).read_text())
+        for keys in (("validness", "precision"), ("validness", "recall"), ("modes", "all"), ("top_picks",)):
+            value = report
+            for key in keys:  # the keys the card reads
+                value = value[key]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise CardError(f"--calibration {path}: not a score_calibration report ({type(err).__name__}: {err}); "
+                        "give the calibration.json that `score_calibration --out DIR` writes") from None
+    return report
+
+
+def calibration_lines(reports: list, paths: list) -> list:
+    """Markdown: score_calibration reports side by side, one column each."""
+    def pick_rate(r, ranking, where):
+        first = r["top_picks"].get(ranking, {}).get("1")
+        if not first:
+            return "—"
+        return f"{first[where] / max(1, first['label'] + first['negative'] + first['neither']):.2f}"
+
+    def mode(r, m, key, digits):
+        v = r["modes"].get(m, {}).get(key)
+        return "—" if v is None else f"{v:.{digits}f}"
+
+    header = [f"`{r.get('model', '?')}` on `{r.get('data', '?')}` ({r.get('scenes', '?')} scenes, {r.get('split', '?')})"
+              for r in reports]
+    rows = [("validness precision / recall (at its threshold)",
+             [f"{r['validness']['precision']:.3f} / {r['validness']['recall']:.3f} ({r['validness'].get('threshold', '?')})"
+              for r in reports]),
+            ("validness AUROC", [f"{r['validness'].get('auroc', math.nan):.3f}" for r in reports])]
+    for m in ("all", "power", "precision"):
+        rows.append((f"score MAE [N], {m}", [mode(r, m, "mae_n", 2) for r in reports]))
+        rows.append((f"score Spearman, {m}", [mode(r, m, "spearman", 3) for r in reports]))
+    for where, what in (("label", "on a held label"), ("negative", "on a known failure")):
+        rows.append((f"first pick {what}, by " + " / ".join(n for _, n in PICK_RANKINGS),
+                     [" / ".join(pick_rate(r, key, where) for key, _ in PICK_RANKINGS) for r in reports]))
+    lines = ["## Calibration", "",
+             "`python -m gravgrasp_detector.tools.score_calibration` reports ("
+             + ", ".join(f"`{p}`" for p in paths) + "): predicted against simulated scores on the "
+             "validation scenes, per grasp mode, and where each scene's first pick lands.", "",
+             "| measure | " + " | ".join(header) + " |", "| --- |" + " --- |" * len(reports)]
+    lines += [f"| {name} | " + " | ".join(cells) + " |" for name, cells in rows]
+    return lines + [""]
+
+
+def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, argv=None, recipes=None,
+                calibrations=()):
     """The card as Markdown text."""
     run_dir = pathlib.Path(run_dir)
     history = load_history(run_dir)
@@ -260,6 +317,9 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
         lines.append("Score MAE is meaningless for the binary target (no score loss).")
     lines.append("")
 
+    if calibrations:
+        lines += calibration_lines([load_calibration(c) for c in calibrations], list(calibrations))
+
     lines += ["## Qualitative check (paper Sec. V-A)", "",
               "`make qualitative MODEL=" + str(model_path) + "`: Ø65×200 mm cylinder and 100×80×100 mm box on "
               "the table, one camera at [0.5, 0, 0.5] m (coordinates from the workspace centre on the table "
@@ -290,6 +350,9 @@ def main(argv=None):
     p.add_argument("--recipes", default=None,
                    help="committed scene recipes the scene files can be rebuilt from (sim_bridge `datagen recipes`), "
                         "e.g. models/scene_recipes_v3; named on the card so a reader can rebuild the data")
+    p.add_argument("--calibration", action="append", default=[], metavar="JSON",
+                   help="a score_calibration report (calibration.json) to show, e.g. this model's and the shipped "
+                        "one's on the same validation scenes (repeat it: one column each)")
     args = p.parse_args(argv)
     run = pathlib.Path(args.run)
     model = pathlib.Path(args.model) if args.model else run / "model.pt"
@@ -301,7 +364,7 @@ def main(argv=None):
                 and model_file.file_sha256(model) != model_file.file_sha256(run_model):
             raise CardError(f"{model} is not the model of {run} (sha256 differs from {run_model}): copy that "
                             "model.pt there, or give the run directory that produced this model")
-        text = render_card(run, model, card, qualitative, args.tables, argv, args.recipes)
+        text = render_card(run, model, card, qualitative, args.tables, argv, args.recipes, args.calibration)
     except (CardError, model_file.ModelFileError) as err:
         print(f"model_card: {err}", file=sys.stderr)
         return 2
