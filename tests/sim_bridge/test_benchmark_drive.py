@@ -45,3 +45,32 @@ def test_the_report_never_pools_rounds_of_two_drives(tmp_path):
                                          "scene_id": "packed_000", "attempts": []})  # before the drive was recorded
     with pytest.raises(ValueError, match="1 rounds .* backdrivable drive .* self_locking: .* never pooled"):
         write_outputs(tmp_path, {"ours": [0.1]}, {"ours": "abc"}, ["packed_000"], [], Protocol(drive="self_locking"), None)
+
+
+def test_a_run_of_other_models_keeps_their_directory(tmp_path, capsys):
+    """A run of models trained on other labels (e.g. models/v6, under the shipped methods'
+    names) records where they are: a resume or --report without --models-dir finds them,
+    another directory is refused, and the shipped models' runs record nothing (as before)."""
+    from sim_bridge.benchmark import clutter_benchmark
+    from sim_bridge.benchmark.rounds import models_dir_of_run
+    shipped, other = tmp_path / "shipped", tmp_path / "v6"
+    for d in (shipped, other):
+        d.mkdir()
+        (d / "gravgrasp.pt").write_bytes(d.name.encode())
+    run = tmp_path / "run"
+    run.mkdir()
+    _config(run, drive="self_locking")
+    config = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**config, "models_dir": str(other)}))
+    assert models_dir_of_run(run) == str(other) and models_dir_of_run(tmp_path / "none") is None
+    args = ["--out", str(run), "--scenes", "2", "--weights", "0.1", "--methods", "ours", "--report",
+            "--procedural-seed", "7", "--no-progress"]
+    assert clutter_benchmark.main(args) == 0  # found in the run's own directory
+    assert clutter_benchmark.main(args + ["--models-dir", str(other) + "/"]) == 0  # the same, however written
+    assert clutter_benchmark.main(args + ["--models-dir", str(shipped)]) == 2
+    err = capsys.readouterr().err
+    assert f"ran the model files of {other}/, not {shipped}/: pass --models-dir {other}" in err
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    _config(plain, drive="self_locking")
+    assert models_dir_of_run(plain) == "models"

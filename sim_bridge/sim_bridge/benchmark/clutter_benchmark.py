@@ -78,7 +78,7 @@ from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
                        QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, PROCEDURAL_SEED,
                        TRAINING_PROCEDURAL_SEED, Protocol, drive_of_run, execution_of_run, weight_key)
-from .rounds import resolve_methods, run_benchmark
+from .rounds import DEFAULT_MODELS_DIR, models_dir_of_run, resolve_methods, run_benchmark
 
 # CLI
 
@@ -105,7 +105,10 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help=f"comma-separated, of {', '.join(METHODS)}; default {','.join(DEFAULT_METHODS)} "
                         "(benchmark.methods)")
-    p.add_argument("--models-dir", default="models")
+    p.add_argument("--models-dir", default=None, metavar="DIR",
+                   help="where the project's model files are (default: the run's own, recorded in its config.json "
+                        f"when not {DEFAULT_MODELS_DIR!r}, else {DEFAULT_MODELS_DIR!r}); e.g. a directory of models "
+                        "trained on other labels, benchmarked under the same method names")
     p.add_argument("--baselines", default=None, metavar="DIR",
                    help="the baselines' files (VGN's weights, the Panda hand); default: GRAVGRASP_BASELINES, "
                         f"else {baseline_files.baselines_dir()}")
@@ -190,8 +193,10 @@ def main(argv=None) -> int:
             return 2
         overrides[name] = path
     names = [m for m in args.methods.split(",") if m] + [m for m in overrides if m not in args.methods.split(",")]
+    out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
+    models_dir = args.models_dir or models_dir_of_run(out) or DEFAULT_MODELS_DIR
     try:
-        methods = resolve_methods(names, args.models_dir, overrides, baselines_dir=args.baselines)
+        methods = resolve_methods(names, models_dir, overrides, baselines_dir=args.baselines)
     except ValueError as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2
@@ -203,7 +208,6 @@ def main(argv=None) -> int:
         print(f"benchmark: --close-on-contact-within-m {args.close_on_contact_within_m}: give a distance >= 0 [m] "
               "(0 = off)", file=sys.stderr)
         return 2
-    out = args.out or ("out/benchmark_quick" if args.quick else "out/benchmark")
     execution = args.execution or execution_of_run(out) or DEFAULT_EXECUTION
     drive = args.drive or drive_of_run(out) or "self_locking"
     protocol = Protocol(validness_threshold=args.validness_threshold, min_score_n=args.min_score_n,
@@ -217,7 +221,7 @@ def main(argv=None) -> int:
                              args.workers, args.scheduler, progress=not args.no_progress,
                              ablation_weights_kg=ablation, only_meshes=only, report_only=args.report,
                              baselines_dir=args.baselines, retry_failed=args.retry_failed,
-                             procedural_seed=procedural_seed)
+                             procedural_seed=procedural_seed, models_dir=models_dir)
     except (ObjectError, ValueError) as e:
         print(f"benchmark: {e}", file=sys.stderr)
         return 2

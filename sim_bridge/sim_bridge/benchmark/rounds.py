@@ -8,6 +8,7 @@ import concurrent.futures as cf
 import contextlib
 import dataclasses
 import json
+import os
 import pathlib
 import time
 from concurrent.futures.process import BrokenProcessPool
@@ -116,10 +117,25 @@ def unreported_rounds(out, plan: dict) -> list:
             if not (method in plan and kg in {float(w) for w in plan[method]})]
 
 
+DEFAULT_MODELS_DIR = "models"  # the shipped models
+
+
+def models_dir_of_run(out_dir) -> str | None:
+    """Where the run in `out_dir` found its model files (its config.json; DEFAULT_MODELS_DIR
+    when it recorded none), or None where no run is. The CLI's --models-dir defaults to it,
+    so that resuming or reporting a run of other models (e.g. models/v6) keeps them."""
+    path = pathlib.Path(out_dir) / "config.json"
+    return json.loads(path.read_text()).get("models_dir", DEFAULT_MODELS_DIR) if path.is_file() else None
+
+
+def _same_dir(a, b) -> bool:
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
                   ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None,
-                  retry_failed=False, procedural_seed=PROCEDURAL_SEED) -> list:
+                  retry_failed=False, procedural_seed=PROCEDURAL_SEED, models_dir=DEFAULT_MODELS_DIR) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
     `methods`: {name: its file's path} (resolve_methods); `baselines_dir`: where the
     Panda hand's files are (None: physics.baseline_files' default); ABLATION_METHODS run at `ablation_weights_kg` if given;
@@ -128,7 +144,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     look at a run that is still going, in the same directory); `retry_failed`: run again the rounds
     Drake could not simulate before (failed_rounds; else they are not rerun); `procedural_seed`:
     the procedural objects' seed without `meshes_dir` (recorded in config.json: a resume with
-    another seed is refused)."""
+    another seed is refused); `models_dir`: where `methods`' model files were found (recorded
+    when not DEFAULT_MODELS_DIR: a run of other models keeps them, models_dir_of_run)."""
     only = tuple(sorted(only_meshes)) if only_meshes is not None else None
     plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
     out = pathlib.Path(out_dir)
@@ -145,6 +162,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         del config["protocol"]["drive"]
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
+    if not _same_dir(models_dir, DEFAULT_MODELS_DIR):  # likewise
+        config["models_dir"] = os.path.normpath(models_dir)
     # The hand of each method run there: a method's, not the run's setting, so it is kept
     # apart from the comparison (methods may join a run later; runs from before it have none).
     hands = {m: method_of(m, p).hand for m, p in methods.items()}
@@ -172,6 +191,12 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         if None not in (ran_seed, seed_now) and ran_seed != seed_now:
             raise ValueError(f"{out} was run on the procedural objects of seed {ran_seed}, not {seed_now}: pass "
                              f"--procedural-seed {ran_seed} or use another --out")
+        ran_models = previous.get("models_dir", DEFAULT_MODELS_DIR)
+        if not _same_dir(ran_models, models_dir):
+            raise ValueError(f"{out} ran the model files of {ran_models}/, not {os.path.normpath(models_dir)}/: pass "
+                             f"--models-dir {ran_models} or use another --out")
+        if "models_dir" in previous:  # the same directory (checked above), as the run first wrote it
+            config["models_dir"] = previous["models_dir"]
         if previous != config:
             raise ValueError(f"{out} holds a run with another configuration ({config_path}); "
                              "use another --out, or delete it to start over")
