@@ -80,6 +80,10 @@ def pick_reference(tables_dir, n_objects, per_object, seed):
         pool = kinds[k]
         take = min(len(pool), (n_objects + 1) // 2 if k == "mesh" else n_objects - len(chosen))
         chosen += [pool[i] for i in sorted(rng.choice(len(pool), size=take, replace=False))]
+    rest = [p for p in kinds["mesh"] if p not in chosen]  # too few procedural tables: meshes fill up
+    if len(chosen) < n_objects and rest:
+        chosen += [rest[i] for i in sorted(rng.choice(len(rest), size=min(len(rest), n_objects - len(chosen)),
+                                                      replace=False))]
     return [(str(p), tuple(int(r) for r in np.sort(rng.choice(held[p][1], size=per_object, replace=False))))
             for p in chosen]
 
