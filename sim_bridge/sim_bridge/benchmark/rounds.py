@@ -135,7 +135,7 @@ def _same_dir(a, b) -> bool:
 def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int = 0, meshes_dir=None,
                   protocol: Protocol = Protocol(), workers=None, scheduler=None, progress=True, note=print,
                   ablation_weights_kg=None, only_meshes=None, report_only=False, baselines_dir=None,
-                  retry_failed=False, procedural_seed=PROCEDURAL_SEED, models_dir=DEFAULT_MODELS_DIR) -> list:
+                  retry_failed=False, procedural_seed=PROCEDURAL_SEED, models_dir=None) -> list:
     """Run (or resume) every round; write the outputs; return the summary rows.
     `methods`: {name: its file's path} (resolve_methods); `baselines_dir`: where the
     Panda hand's files are (None: physics.baseline_files' default); ABLATION_METHODS run at `ablation_weights_kg` if given;
@@ -145,7 +145,8 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
     Drake could not simulate before (failed_rounds; else they are not rerun); `procedural_seed`:
     the procedural objects' seed without `meshes_dir` (recorded in config.json: a resume with
     another seed is refused); `models_dir`: where `methods`' model files were found (recorded
-    when not DEFAULT_MODELS_DIR: a run of other models keeps them, models_dir_of_run)."""
+    when not DEFAULT_MODELS_DIR: a run of other models keeps them, models_dir_of_run; another
+    one for the same run is refused; None: not said, the run's own is kept)."""
     only = tuple(sorted(only_meshes)) if only_meshes is not None else None
     plan = {m: method_weights(m, weights_kg, ablation_weights_kg) for m in methods}
     out = pathlib.Path(out_dir)
@@ -162,7 +163,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
         del config["protocol"]["drive"]
     if only is not None:  # older runs' config.json has no such key: they stay resumable
         config["only_meshes"] = list(only)
-    if not _same_dir(models_dir, DEFAULT_MODELS_DIR):  # likewise
+    if models_dir is not None and not _same_dir(models_dir, DEFAULT_MODELS_DIR):  # likewise
         config["models_dir"] = os.path.normpath(models_dir)
     # The hand of each method run there: a method's, not the run's setting, so it is kept
     # apart from the comparison (methods may join a run later; runs from before it have none).
@@ -192,7 +193,7 @@ def run_benchmark(out_dir, methods: dict, weights_kg, n_scenes: int, seed: int =
             raise ValueError(f"{out} was run on the procedural objects of seed {ran_seed}, not {seed_now}: pass "
                              f"--procedural-seed {ran_seed} or use another --out")
         ran_models = previous.get("models_dir", DEFAULT_MODELS_DIR)
-        if not _same_dir(ran_models, models_dir):
+        if models_dir is not None and not _same_dir(ran_models, models_dir):
             raise ValueError(f"{out} ran the model files of {ran_models}/, not {os.path.normpath(models_dir)}/: pass "
                              f"--models-dir {ran_models} or use another --out")
         if "models_dir" in previous:  # the same directory (checked above), as the run first wrote it
