@@ -163,10 +163,14 @@ def main(argv=None):
     report["reference"] = dict(cpu_s_per_held_grasp=cpu["reference"] / len(keys),
                                still_held=float(np.mean([results["reference"][k][0] for k in keys])),
                                stored_vs_resimulated=moved)
+    own = SimSettings.from_record(json.loads(str(tables[ref[0][0]]["sim_settings"])))
     print(f"reference: {len(keys)} held grasps of {len(ref)} objects re-simulated at the tables' settings "
-          f"(dt 1 ms, 400 N/s, cap 200 N): {report['reference']['cpu_s_per_held_grasp']:.2f} CPU s per held grasp; "
-          f"{100 * report['reference']['still_held']:.0f} % still held; vs the stored v1 scores: Spearman f_g "
-          f"{moved['spearman_f_g']:.3f}, MAE per direction {moved['mae_per_direction_n']} N (the code changed since)")
+          f"(e.g. dt {own.time_step_s * 1e3:g} ms, {own.force_ramp_rate_n_s:g} N/s, cap {own.max_force_n:g} N, "
+          f"{own.drive} drive): {report['reference']['cpu_s_per_held_grasp']:.2f} CPU s per held grasp; "
+          f"{100 * report['reference']['still_held']:.0f} % still held; vs the scores stored in the tables: "
+          f"Spearman f_g {moved['spearman_f_g']:.3f}, MAE per direction {moved['mae_per_direction_n']} N "
+          + ("(identical: the same code made them)" if max(moved["mae_per_direction_n"]) == 0
+             else "(the simulation code changed since they were made)"))
     best = None
     for name, overrides in settings.items():
         if name == "reference":
