@@ -95,5 +95,4 @@ def power_grasp_effect(rounds: list) -> list:
     """compare_paired of Ours against Ours-Precision at each weight both ran (the
     entries of compare_paired, method "ours", reference "ours_precision"); [] when
     either did not run."""
-    method, reference = POWER_GRASP_PAIR
-    return compare_paired([r for r in rounds if r["method"] in POWER_GRASP_PAIR], reference=reference)
+    return compare_paired([r for r in rounds if r["method"] in POWER_GRASP_PAIR], reference=POWER_GRASP_PAIR[1])

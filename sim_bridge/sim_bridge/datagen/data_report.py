@@ -2,8 +2,8 @@
 
 DIR is a datagen output directory (with objects/ and optionally scenes/) or a
 directory of grasp tables.  Prints objects, simulated and successful grasps, mode
-split, the wraps (held grasps that meet the wrap rule, physics.grasp_simulation.classify_mode,
-from each row's contacts and finger angles, whatever rule its table's mode used), the
+split, the wraps (held power grasps whose distal links wrapped past their stop, from each
+row's finger angles: the wrap rule of physics.grasp_simulation.classify_mode), the
 toward-the-palm rows of `datagen wrap`, skipped objects with their reasons, score
 statistics per mode, labels per scene and their gravity-rejection score per mode;
 writes a PNG with the score histograms per mode and the labels per scene.
@@ -23,8 +23,7 @@ import sys
 import numpy as np
 
 from gravgrasp_detector import atomic_files
-from ..physics.grasp_simulation import classify_mode, wrap_angle_rad
-from .object_grasps import CONTACT_LINK_NAMES
+from .object_grasps import MODE_NAMES, wrapping_power
 from .power_grasps import DIRECTORY as TOWARD_PALM
 
 
@@ -34,18 +33,11 @@ def _tables_dir(d):
 
 
 def wraps_of(table) -> np.ndarray:
-    """Per row of an open table (np.load): does the held grasp meet the wrap rule
-    (classify_mode on its contacts and finger angles)? None for a table without them."""
-    if not {"contacts", "finger_joint_angles", "finger_joint_names"} <= set(table.files):
+    """Per row of an open table (np.load): does the held grasp wrap (object_grasps.wrapping_power)?
+    None for a table that records no finger angles."""
+    if "finger_joint_names" not in table.files:
         return None
-    names = table["contact_link_names"] if "contact_link_names" in table.files else CONTACT_LINK_NAMES  # row files lack it
-    links, joints = [str(n) for n in names], [str(n) for n in table["finger_joint_names"]]
-    out = np.zeros(len(table["grasped"]), bool)
-    for i in np.flatnonzero(table["grasped"]):
-        touched = [n for k, n in enumerate(links) if int(table["contacts"][i]) >> k & 1]
-        angles = {n: float(a) for n, a in zip(joints, table["finger_joint_angles"][i]) if np.isfinite(a)}
-        out[i] = classify_mode(touched, wrap_angle_rad(angles)) == "power"
-    return out
+    return wrapping_power(table) & table["grasped"].astype(bool)
 
 
 def collect(data_dir, scenes_dir=None):
@@ -79,7 +71,7 @@ def collect(data_dir, scenes_dir=None):
             tp["objects"] += 1
             tp["closed"] += len(t["grasped"])
             tp["held"] += int(t["grasped"].sum())
-            tp["wraps"] += int(wraps_of(t).sum())  # the wrap stage always records contacts and angles
+            tp["wraps"] += int(wraps_of(t).sum())  # the wrap stage always records the finger angles
     for p in sorted(tdir.glob("*.skip.json")):
         stats["skipped"].append(json.loads(p.read_text()))
     for p in sorted((tdir / "perturbed").glob("*.npz")):  # datagen perturb's rows (perturbed_grasps)
@@ -114,8 +106,8 @@ def collect(data_dir, scenes_dir=None):
                 # n_grasps_collision_free counts the grasps that passed every check of the
                 # scene stage, the execution check included (dropped ones are already out)
                 valid.append(int(z["n_grasps_collision_free"]))
-    stats["labels_per_scene"] = np.asarray(labels)  # fg: f_g of each label (Eq. 1 along gravity) [N]
-    stats["label_scores"] = np.concatenate(fg) if fg else np.zeros(0)
+    stats["labels_per_scene"] = np.asarray(labels)
+    stats["label_scores"] = np.concatenate(fg) if fg else np.zeros(0)  # f_g of each label (Eq. 1 along gravity) [N]
     stats["label_modes"] = np.concatenate(fg_mode) if fg_mode else np.zeros(0, np.uint8)
     stats["arrangements"] = arrangements
     stats["labels_without_copies"] = np.asarray(without_copies)
@@ -135,7 +127,7 @@ def report_text(s):
     lines.append(f"modes of held grasps: power {s['power']}, precision {s['precision']}")
     if s["without_wrap_measure"] < s["objects"]:
         lines.append(f"wraps (held grasps meeting the wrap rule): {s['wraps']} ({100 * s['wraps'] / max(1, g):.1f}% of held)"
-                     + (f"; {s['without_wrap_measure']} tables record no contacts or finger angles"
+                     + (f"; {s['without_wrap_measure']} tables record no finger angles"
                         if s["without_wrap_measure"] else ""))
     tp = s["toward_palm"]
     if tp["objects"]:
@@ -173,7 +165,7 @@ def report_text(s):
                      f"scenes without labels: {(n == 0).sum()}")
         if len(lf):
             fg = s["label_scores"]
-            per_mode = ", ".join(f"{m} {np.median(fg[lf == k]):.1f} N" for k, m in enumerate(("power", "precision"))
+            per_mode = ", ".join(f"{m} {np.median(fg[lf == k]):.1f} N" for k, m in enumerate(MODE_NAMES[:2])
                                  if (lf == k).any())
             lines.append(f"labels: {len(lf)}, power {100 * (lf == 0).mean():.1f}%; gravity-rejection score "
                          f"median {np.median(fg):.1f} N ({per_mode})")

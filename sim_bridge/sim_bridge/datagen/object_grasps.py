@@ -43,6 +43,7 @@ from gravgrasp_detector import atomic_files
 from ..parallel import task_seed
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import MODES, GraspSimulator
+from ..physics.hand_model import WRAP_MIN_RAD
 from ..physics.hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
 from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
@@ -323,6 +324,16 @@ def table_wrap_rad(table) -> np.ndarray:
     a = table["finger_joint_angles"]
     wrap = np.minimum(-a[:, names.index("left_coupler")], -a[:, names.index("right_coupler")])
     return np.nan_to_num(np.maximum(wrap, 0.0)).astype(np.float64)
+
+
+def wrapping_power(table) -> np.ndarray:
+    """(N,) rows that are power grasps that wrap (grasp_simulation.classify_mode: palm or
+    proximal contact and both distal links past their stop); a power row that does not
+    wrap counts as a precision grasp. A table without recorded finger joints keeps its modes."""
+    power = table["mode"] == MODE_NAMES.index("power")
+    if "finger_joint_names" not in table:
+        return power
+    return power & (table_wrap_rad(table) >= WRAP_MIN_RAD)
 
 
 def load_table(path):

@@ -36,10 +36,9 @@ import numpy as np
 from gravgrasp_detector import atomic_files
 from gravgrasp_detector.training.scenes import G_MPS2
 
-from ..datagen.object_grasps import MODE_NAMES, table_wrap_rad
+from ..datagen.object_grasps import MODE_NAMES, wrapping_power
 from ..datagen.perturbed_grasps import load_labelling_table
 from ..physics import hand_collision
-from ..physics.hand_model import WRAP_MIN_RAD
 from ..physics.gravity_projection import gravity_rejection_score
 
 WEIGHTS_KG = (0.1, 0.5, 1.0, 1.5, 2.5, 4.0, 6.0, 8.0)
@@ -66,16 +65,6 @@ def pose_scores(table: dict) -> list:
         m = mode[ok]
         out.append((float(p), f_g[m == POWER], f_g[m == PRECISION]))
     return out
-
-
-def wrapping_power(table) -> np.ndarray:
-    """(N,) rows that are power grasps that wrap (grasp_simulation.classify_mode: palm or
-    proximal contact and both distal links past their stop); a power row that does not
-    wrap counts as a precision grasp. A table without recorded finger joints keeps its modes."""
-    power = table["mode"] == POWER
-    if "finger_joint_names" not in table:
-        return power
-    return power & (table_wrap_rad(table) >= WRAP_MIN_RAD)
 
 
 def best(f_g) -> float:
