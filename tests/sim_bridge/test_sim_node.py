@@ -8,6 +8,7 @@ import pytest
 from geometry_msgs.msg import PoseStamped
 from gravgrasp_msgs.msg import ObjectStates
 from gravgrasp_msgs.srv import LoadScene, MoveToPose, RemoveObject, SetObjectMass
+from rclpy.duration import Duration
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
@@ -84,6 +85,16 @@ def test_sim_node_camera_arm_and_gripper(ros_node, ros_process, tmp_path):
     assert not future.result().success and future.result().message == "stopped on request"
     # stopped on the way (the stop can land before the reference has moved: all 0.15 m left)
     assert 0.0 < future.result().distance_left_m <= 0.15 + 1e-9 and not future.result().stopped_by_contact
+    # the request's deadline, as ur_arm keeps it: a stale request is refused, a late motion stopped
+    stale = MoveToPose.Request(target=target(0.15, 0.15, 0.45), speed_mps=0.25)
+    stale.deadline = (ros_node.get_clock().now() - Duration(seconds=1.0)).to_msg()
+    refused = call_service(ros_node, move, stale, timeout_s=60)
+    assert not refused.reachable and "deadline passed" in refused.message and math.isnan(refused.distance_left_m)
+    late = MoveToPose.Request(target=target(0.25, 0.15, 0.40), speed_mps=0.02)  # >= 0.1 m away: > 9 s
+    late.deadline = (ros_node.get_clock().now() + Duration(seconds=1.0)).to_msg()
+    cut = call_service(ros_node, move, late, timeout_s=60)
+    assert not cut.success and "stopped at the request's deadline" in cut.message, cut.message
+    assert 0.0 < cut.distance_left_m < 0.2
     nan = call(target(math.nan, 0.15, 0.45))
     assert not nan.success and "NaN" in nan.message
     frame = call(target(0.15, 0.15, 0.45, frame="base_link"))

@@ -10,7 +10,7 @@ A thin ROS adapter around `sim_world.SimWorld` (see there for the physics):
 | `depth/camera_info` | sensor_msgs/CameraInfo | pinhole, no distortion; reliable, keep last 1 |
 | `camera_pose` | geometry_msgs/PoseStamped | T_task_camera (optical frame) in `frame_id`; reliable, keep last 1 |
 | `object_states` | gravgrasp_msgs/ObjectStates | ground truth (reliable) |
-| `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion of the arm stand-in |
+| `move_to_pose` | gravgrasp_msgs/MoveToPose | straight-line TCP motion of the arm stand-in; past its `deadline` a request is refused, a motion stopped (as `ur_arm`) |
 | `load_scene` | gravgrasp_msgs/LoadScene | new scene (hand back home) |
 | `set_object_mass` | gravgrasp_msgs/SetObjectMass | |
 | `remove_object` | gravgrasp_msgs/RemoveObject | |
@@ -243,19 +243,36 @@ class SimNode(Node):
         if request.check_only or not reachable:
             response.success, response.message = False, message
             return response
+        given_up_at = self._deadline(request.deadline)
+        if given_up_at is not None and time.monotonic() >= given_up_at:  # as ur_arm refuses it
+            response.reachable, response.success = False, False
+            response.message = ("refused: the request's deadline passed before the motion started "
+                                "(the caller gave up on it); nothing moved")
+            return response
         motion = self.world.start_move(X, speed or self.default_speed)
         # One line per motion: what the arm stand-in was asked to do, in the order it did it.
         self.get_logger().info(f"move_to_pose: hand to {np.round(X[:3, 3], 3).tolist()} m at "
                                f"{speed or self.default_speed:.2f} m/s ({motion.duration_s:.1f} s of sim time)")
-        deadline = time.monotonic() + motion.duration_s / 0.05 + 10.0  # even at 5% of real time
-        while not motion.done.wait(timeout=0.2):
-            if self.runner.error is not None or time.monotonic() > deadline:
+        stalled_at = time.monotonic() + motion.duration_s / 0.05 + 10.0  # even at 5% of real time
+        while not motion.done.wait(timeout=0.2 if given_up_at is None
+                                   else min(0.2, max(0.0, given_up_at - time.monotonic()))):
+            if given_up_at is not None and time.monotonic() >= given_up_at:
+                self.world.stop_motion("stopped at the request's deadline (the caller gave up on it)")
+                continue  # the motion is done now, with the stop's message
+            if self.runner.error is not None or time.monotonic() > stalled_at:
                 why = f"the simulation stopped: {self.runner.error}" if self.runner.error else "the simulation is stalled"
                 response.success, response.message = False, f"motion did not finish: {why}"
                 return response
         response.success, response.message = motion.result
         response.stopped_by_contact, response.distance_left_m = motion.stopped_by_contact, motion.left_m
         return response
+
+    def _deadline(self, stamp):
+        """MoveToPose's deadline (ROS time; 0 = none) on time.monotonic's clock, or None."""
+        deadline_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if deadline_ns == 0:
+            return None
+        return time.monotonic() + (deadline_ns - self.get_clock().now().nanoseconds) * 1e-9
 
     def _on_fault(self, request, response):
         self.emulator.inject_fault(OVERCURRENT_FAULT)

@@ -287,15 +287,15 @@ class SimWorld:
                 self._motion = m
             return m
 
-    def stop_motion(self) -> bool:
+    def stop_motion(self, why: str = "stopped on request") -> bool:
         """Halt the running motion at once where the reference is now (an arm's protective
-        stop); it ends with success False, "stopped on request". False if none ran."""
+        stop); it ends with success False and `why` as its message. False if none ran."""
         with self.lock:
             m = self._motion
             if m is None or m.done.is_set():
                 return False
             self._hold = m.reference(self.time_s)[0]
-            m.finish(False, "stopped on request", self._hold)
+            m.finish(False, why, self._hold)
             return True
 
     def move_tcp(self, X_task_tcp, speed_mps: float, timeout_s: float = 30.0) -> tuple:
