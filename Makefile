@@ -25,7 +25,7 @@ help:
 	@echo "make benchmark-quick - clutter removal vs weight, 2 scenes x 0.1/1.5 kg, models present (minutes)"
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"
 	@echo "make benchmark-baselines - the paper's Fig. 5 baselines: VGN, VN-EdgeGraspNet (Panda) and VGN on the 2F-85 beside the committed rounds (256 rounds, ~10 h; pinned, background, resumable)"
-	@echo "make lever-clearance - issue 42's training lever: Ours retrained with the executor's clearance at label time, 16-scene lever runs (~3.5 h; pinned, background, resumable)"
+	@echo "make lever-clearance - the label-time clearance lever: Ours retrained with the executor's clearance applied to its labels, 16-scene lever runs (~3.5 h; pinned, background, resumable)"
 	@echo "make lever-guarded - issue 42's execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
 	@echo "make lever-selection METHOD=ours_precision_sure - issue 42's selection levers: one registered method beside the committed Ours, Binary, Ours-Precision rounds (~80 min; pinned, background, resumable)"
 	@echo "make lever-decisive METHOD=... [PRODUCT=ours] [SCREEN=binary_scored] - issue 42's decisive runs of the chosen lever: 32 scenes on both tuning sets, then PRODUCT (default METHOD) there at 0.1-4 kg and on procedural seed 2000 once, SCREEN at 0.1/1.5 kg on the same 32 scenes (~14 h; pinned, background, resumable)"

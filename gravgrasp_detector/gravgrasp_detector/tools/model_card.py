@@ -257,10 +257,7 @@ def render_card(run_dir, model_path, card_path, qualitative_dir, tables=None, ar
     data_dir = td.get("data")
     lines.append(f"- scene files: `{data_dir}`; this run used {td.get('scenes_train', '?')} training + "
                  f"{td.get('scenes_val', '?')} validation scenes (split by scene, seed {td.get('seed', '?')}) and "
-                 f"{td.get('labels_train', '?')} labelled voxels in its training scenes (after the label subset)"
-                 + (f"; `--label-clearance` turned {td['labels_refused_train']} more, whose open hand the "
-                    "executor's clearance check refuses in their scene's TSDF, into explicit negatives."
-                    if "labels_refused_train" in td else "."))
+                 f"{td.get('labels_train', '?')} labelled voxels in its training scenes (after the label subset).")
     tdir = tables_dir_for(data_dir, tables) if data_dir else None
     if recipes:  # scene files are too big to commit; their recipes are not
         objects_out = tdir.parent if tdir is not None and tdir.name == "objects" else tdir  # restore adds objects/

@@ -4,8 +4,7 @@
 
 Variants (the paper's comparisons): --rotation ex-ez|ey-ez|quat, --target
 gravity-score|binary (binary: VGN-style classifier, positive iff the grasp holds the
-nominal weight; ranked by validness), --data-subset all|precision-only,
---label-clearance (labels the executor would refuse become negatives, label_clearance.py).
+nominal weight; ranked by validness), --data-subset all|precision-only.
 
 The data (scenes.py), the losses (losses.py) and the loop with its
 resumable checkpoint (loop.py) take their options as one TrainConfig
@@ -42,9 +41,6 @@ def main(argv=None) -> int:
                    help="validness loss weight of a voxel with no label either way")
     p.add_argument("--positive-weight", type=float, default=defaults.positive_weight,
                    help="validness loss weight of a labelled voxel; 0: the summed negative weight / positives")
-    p.add_argument("--label-clearance", action="store_true",
-                   help="labels whose open hand, swept from the pre-grasp, meets the scene's observed TSDF "
-                        "(the executor's clearance check) become explicit negatives, not positives")
     p.add_argument("--validation-fraction", type=float, default=defaults.validation_fraction)
     p.add_argument("--seed", type=int, default=defaults.seed)
     p.add_argument("--threads", type=int, default=defaults.threads)

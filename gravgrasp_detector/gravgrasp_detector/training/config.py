@@ -32,6 +32,3 @@ class TrainConfig:
     negative_weight: float = 1.0
     unlabelled_weight: float = 1.0
     positive_weight: float = 0.0
-    # Labels the executor would refuse (its open-hand clearance check against the scene's
-    # observed TSDF, label_clearance.py) become explicit negatives (issue 42's lever).
-    label_clearance: bool = False

@@ -96,8 +96,8 @@ def train(config: TrainConfig, progress=True, argv=None):
         raise DataError(f"found {len(files)} scene files (*.npz) under {config.data}; generate "
                         "scenes first: ros2 run sim_bridge datagen scenes ...")
     train_files, val_files = split_scenes(files, config.validation_fraction, config.seed)
-    train_scenes = [_training_scene(f, config) for f in train_files]
-    val_scenes = [_training_scene(f, config) for f in val_files]
+    train_scenes = [load_scene(f) for f in train_files]
+    val_scenes = [load_scene(f) for f in val_files]
     resolution = train_scenes[0]["tsdf"].shape[0]
     all_scores = np.concatenate([select_labels(s, config)[1] for s in train_scenes])
     if len(all_scores) == 0:
@@ -152,7 +152,6 @@ def train(config: TrainConfig, progress=True, argv=None):
         "scenes_val": len(val_scenes),
         "labels_train": int(len(all_scores)),
         "negatives_train": int(sum(len(s["negative_index"]) for s in train_scenes)),
-        **({"labels_refused_train": _labels_refused(train_scenes)} if config.label_clearance else {}),
         "target": config.target, "subset": config.subset,
         "nominal_mass_kg": config.nominal_mass_kg, "epochs": config.epochs, "seed": config.seed,
         "validation": history[-1] if history else {},
@@ -171,23 +170,6 @@ def train(config: TrainConfig, progress=True, argv=None):
     atomic_files.save_json(out / "history.json", history)
     plot_history(history, out / "training_curve.png")
     return history[-1] if history else {}
-
-
-def _training_scene(path, config: TrainConfig):
-    """A scene file as training reads it: with --label-clearance, the labels the executor
-    would refuse moved to the negatives, on the scene as stored (augmentation moves them
-    with the volume afterwards)."""
-    scene = load_scene(path)
-    if not config.label_clearance:
-        return scene
-    from . import label_clearance  # lazy: the hand's geometry (robotiq_driver) only when asked for
-    return label_clearance.refused_to_negatives(scene)
-
-
-def _labels_refused(scenes) -> int:
-    """How many labels --label-clearance moved to the negatives."""
-    from .label_clearance import NEGATIVE_REFUSED  # lazy: as in _training_scene
-    return int(sum((s["negative_reason"] == NEGATIVE_REFUSED).sum() for s in scenes))
 
 
 def _checkpoint(path, config: TrainConfig, device):

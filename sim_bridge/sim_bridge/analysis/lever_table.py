@@ -49,7 +49,7 @@ LEVERS = (
      {HELDOUT: "heldout_v4_told"}),
     ("precision labels only", "training", "`train --data-subset precision-only`", "ours_precision",
      {HELDOUT: "heldout_v4", PROCEDURAL: "baselines_procedural"}),
-    ("executor's clearance at label time", "training", "`train --label-clearance`", "ours_clearance",
+    ("executor's clearance at label time", "training", "`label_clearance_lever --write`, then `train`", "ours_clearance",
      {HELDOUT: "heldout_v4_clearance", PROCEDURAL: "procedural_v4_clearance"}),
     ("guarded approach, 10 mm", "execution", "execute `close_on_contact_within_m:=0.01`", "ours",
      {HELDOUT: "heldout_v4_guarded_approach"}),  # procedural half not run: no effect held-out (levers.md)

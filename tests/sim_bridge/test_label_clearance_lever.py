@@ -1,21 +1,18 @@
-"""--label-clearance (training/label_clearance.py): labels whose open hand the executor's
-clearance check refuses in the scene's observed TSDF become explicit negatives.
+"""The label-time clearance lever (sim_bridge.studies.label_clearance_lever): labels whose
+open hand the executor's clearance check refuses in the scene's observed TSDF become
+explicit negatives, in scene files written for training.
 
 Scenes: a hand-made 40^3 grid, unobserved (free) but for one observed wall, with one
 top-down label whose open finger comes down through the wall and one in the open; and box_scenes' fused TSDFs of a box
 (tests/support/box_scenes.py) for the agreement with the executor on many poses.
 """
 import numpy as np
-import pytest
 
 from gravgrasp_detector.execution.executor import ExecutionLimits, plan_poses, scene_collision
-from gravgrasp_detector.perception import model_file, tsdf
-from gravgrasp_detector.tools import model_card
-from gravgrasp_detector.training import cli as training
-from gravgrasp_detector.training import label_clearance
-from gravgrasp_detector.training import loop as training_loop
+from gravgrasp_detector.perception import tsdf
 from gravgrasp_detector.training import scenes as training_scenes
 from gravgrasp_detector.training.config import TrainConfig
+from sim_bridge.studies import label_clearance_lever as label_clearance
 
 from box_scenes import write_scenes
 
@@ -28,6 +25,7 @@ def wall_scene(path):
     """A scene file: an observed wall (occupied voxels, TSDF 0.3; 2 voxels thick, 120 mm
     tall) 45-53 mm beside the first label's TCP along its closing direction, where the
     open finger descends; nothing near the second label. Unobserved elsewhere (free)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     grid = np.zeros((R, R, R), np.float32)
     grid[6:15, 16:18, 14:30] = 0.3
     grid[6:15, 15, 14:30] = 0.5  # the face the camera saw: surface, not occupied
@@ -50,29 +48,50 @@ def executor_refuses(scene):
 
 
 def test_a_label_whose_finger_descends_through_a_seen_wall_becomes_a_negative_the_other_stays(tmp_path):
-    path = wall_scene(tmp_path / "wall.npz")
+    path = wall_scene(tmp_path / "scenes" / "wall.npz")
     stored = training_scenes.load_scene(path)
     np.testing.assert_array_equal(label_clearance.refused_labels(stored), [True, False])
 
-    on = training_loop._training_scene(path, TrainConfig(data="", out="", label_clearance=True))
+    assert label_clearance.write_scenes(tmp_path / "scenes", tmp_path / "out") == (1, 1)
+    on = training_scenes.load_scene(tmp_path / "out" / "wall.npz")
     np.testing.assert_array_equal(on["index"], [IN_THE_OPEN])
     np.testing.assert_array_equal(on["score"], [20.0])
     np.testing.assert_array_equal(on["mode"], [1])
     np.testing.assert_array_equal(on["negative_index"], [[2, 2, 2], BESIDE_WALL])
     np.testing.assert_array_equal(on["negative_reason"], [1, label_clearance.NEGATIVE_REFUSED])
+    np.testing.assert_array_equal(on["tsdf"], stored["tsdf"])
     # in the training example: the refused voxel is a validness 0, the other still a 1
     example = training_scenes.make_example(on, TrainConfig(data="", out=""))
     valid = {tuple(i): v for i, v in zip(example["index"].tolist(), example["valid"].tolist())}
     assert valid[BESIDE_WALL] == 0.0 and valid[IN_THE_OPEN] == 1.0
+    # a second run keeps what the first wrote (an interrupted run resumes)
+    assert label_clearance.write_scenes(tmp_path / "scenes", tmp_path / "out") == (0, 0)
 
-    off = training_loop._training_scene(path, TrainConfig(data="", out=""))
-    for key in ("index", "score", "e_x", "e_z", "mode", "negative_index", "negative_reason"):
-        np.testing.assert_array_equal(off[key], stored[key])
-    assert len(off["index"]) == 2
+
+def test_a_scene_with_nothing_refused_is_written_as_stored(tmp_path):
+    (tmp_path / "scenes").mkdir()
+    scenes = write_scenes(tmp_path / "scenes", 1, seed=3)
+    [path] = sorted(scenes.glob("*.npz"))
+    keep = ~label_clearance.refused_labels(training_scenes.load_scene(path))
+    with np.load(path) as z:  # the same scene with only the labels the executor accepts
+        arrays = {k: z[k] for k in z.files}
+    for key in ("label_index", "label_score", "label_e_x", "label_e_z", "label_mode"):
+        arrays[key] = arrays[key][keep]
+    (tmp_path / "kept").mkdir()
+    np.savez(tmp_path / "kept" / path.name, **arrays)
+    assert label_clearance.write_scenes(tmp_path / "kept", tmp_path / "out") == (1, 0)
+    with np.load(tmp_path / "kept" / path.name) as a, np.load(tmp_path / "out" / path.name) as b:
+        assert sorted(a.files) == sorted(b.files)
+        for key in a.files:
+            np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_no_scene_files_is_one_clear_error(tmp_path, capsys):
+    assert label_clearance.main([str(tmp_path)]) == 2
+    assert "no scene files (*.npz) under" in capsys.readouterr().err
 
 
 def test_the_verdict_is_the_executors_own_on_the_same_poses(tmp_path):
-    assert label_clearance.PREGRASP_DISTANCE_M == ExecutionLimits.pregrasp_distance_m
     rng = np.random.default_rng(5)
     verdicts = []
     for path in sorted(write_scenes(tmp_path, 3, seed=11).glob("*.npz")) + [wall_scene(tmp_path / "wall.npz")]:
@@ -93,8 +112,8 @@ def test_the_verdict_is_the_executors_own_on_the_same_poses(tmp_path):
 
 
 def test_the_check_on_the_stored_scene_is_the_check_on_the_rotated_one(tmp_path):
-    """Training checks before augmenting: the same labels are refused whichever quarter
-    turn the volume takes afterwards."""
+    """The lever checks the scene as stored, before training augments it: the same labels
+    are refused whichever quarter turn the volume takes afterwards."""
     scene = training_scenes.load_scene(sorted(write_scenes(tmp_path, 1, seed=7).glob("*.npz"))[0])
     refused = label_clearance.refused_labels(scene)
     assert 0 < refused.sum() < len(refused)
@@ -103,27 +122,3 @@ def test_the_check_on_the_stored_scene_is_the_check_on_the_rotated_one(tmp_path)
                                                                      scene["e_z"], k)
         turned = dict(scene, tsdf=grid, index=index, e_x=e_x, e_z=e_z)
         np.testing.assert_array_equal(label_clearance.refused_labels(turned), refused)
-
-
-def test_no_refused_label_leaves_the_scene_as_it_is(tmp_path):
-    scene = training_scenes.load_scene(wall_scene(tmp_path / "wall.npz"))
-    assert label_clearance.refused_to_negatives(scene, refused=[False, False]) is scene
-
-
-@pytest.mark.slow  # trains one epoch (~10 s)
-def test_the_option_is_recorded_in_the_model_file(tmp_path):
-    (tmp_path / "scenes").mkdir()
-    data = write_scenes(tmp_path / "scenes", 4, seed=7)
-    wall_scene(data / "wall.npz")
-    out = tmp_path / "run"
-    argv = ["--data", str(data), "--out", str(out), "--epochs", "1", "--threads", "1", "--no-progress",
-            "--label-clearance"]
-    assert training.main(argv) == 0
-    _, meta = model_file.load_model(out / "model.pt")
-    summary = meta["training_data"]
-    assert summary["config"]["label_clearance"] is True and "--label-clearance" in summary["command"]
-    train_files, _ = training_scenes.split_scenes(sorted(str(p) for p in data.rglob("*.npz")), 0.1, 0)
-    refused = sum(int(label_clearance.refused_labels(training_scenes.load_scene(f)).sum()) for f in train_files)
-    assert summary["labels_refused_train"] == refused > 0
-    card = model_card.render_card(out, out / "model.pt", tmp_path / "card.md", tmp_path / "qualitative")
-    assert f"`--label-clearance` turned {refused} more" in card

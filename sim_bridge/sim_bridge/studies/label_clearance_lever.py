@@ -1,5 +1,6 @@
-"""Label-time clearance (`--label-clearance`, issue 42's lever): a label the executor
-would refuse becomes an explicit validness negative instead of a positive.
+"""The label-time clearance lever: a label the executor would refuse becomes an explicit
+validness negative instead of a positive. Tried on Ours, worse on the benchmark, not
+shipped (sim_bridge/doc/label-clearance-lever.md).
 
 Data generation keeps a grasp whose open hand clears the true geometry of the scene; the
 executor refuses one whose open hand, swept from the pre-grasp along the approach, meets
@@ -8,28 +9,32 @@ surface counts as solid, the true object may be thinner). A network trained on l
 the first kind learns to pick grasps of the second. This applies the executor's own check
 (`hand_clearance.hands_collide`, first_collision's verdict) to each label at the pose
 detection publishes for its voxel, on the scene's own TSDF, and moves the refused ones to
-the negatives with reason NEGATIVE_REFUSED. Training applies it on the scene as stored,
-before augmentation moves the volume and its labels together.
+the negatives with reason NEGATIVE_REFUSED, on the scene as stored: training's
+augmentation then moves them with the volume as it moves the other negatives.
+
+    python -m sim_bridge.studies.label_clearance_lever SCENE_DIR               # what it refuses
+    python -m sim_bridge.studies.label_clearance_lever SCENE_DIR --write OUT   # scenes to train on
 """
 from __future__ import annotations
 
+import argparse
 import pathlib
 import sys
 import time
 
 import numpy as np
 
-from ..perception import hand_clearance, tsdf
-from ..perception.hand_clearance import ROBOTIQ_2F85, HandGeometry
-from .scenes import DataError, load_scene
+from gravgrasp_detector import atomic_files
+from gravgrasp_detector.execution.executor import ExecutionLimits
+from gravgrasp_detector.perception import hand_clearance, tsdf
+from gravgrasp_detector.perception.hand_clearance import ROBOTIQ_2F85, HandGeometry
+from gravgrasp_detector.training.scenes import DataError, load_scene
 
 # negative_reason codes: datagen's are 1 (a simulated failure) and 2 (the hand collides
-# with the true geometry); this one is training's
+# with the true geometry); this one is the lever's
 NEGATIVE_REFUSED = 3
-# The executor's default pre-grasp stand-off (ExecutionLimits.pregrasp_distance_m, a test
-# checks they agree), the one the benchmark runs with; not imported: the executor brings
-# the gripper's serial stack, which a training machine need not have.
-PREGRASP_DISTANCE_M = 0.05
+# the executor's default pre-grasp stand-off, the one the benchmark runs with
+PREGRASP_DISTANCE_M = ExecutionLimits.pregrasp_distance_m
 
 
 def label_poses(index, e_x, e_z, voxel_size_m: float) -> np.ndarray:
@@ -56,22 +61,6 @@ def refused_labels(scene, approach_m: float = PREGRASP_DISTANCE_M,
     return hand_clearance.hands_collide(poses, points, voxel_size_m, approach_m, hand)
 
 
-def refused_to_negatives(scene, refused=None) -> dict:
-    """The scene with its refused labels (`refused_labels` unless given) moved from the
-    labels to the explicit negatives (reason NEGATIVE_REFUSED); the input is unchanged."""
-    refused = refused_labels(scene) if refused is None else np.asarray(refused, bool)
-    if not refused.any():
-        return scene
-    kept = dict(scene)
-    for key in ("index", "score", "e_x", "e_z", "mode"):
-        if scene[key] is not None:
-            kept[key] = scene[key][~refused]
-    kept["negative_index"] = np.concatenate([scene["negative_index"], scene["index"][refused]])
-    kept["negative_reason"] = np.concatenate([scene["negative_reason"],
-                                              np.full(int(refused.sum()), NEGATIVE_REFUSED, np.int64)])
-    return kept
-
-
 def parts_hit(scene, refused) -> dict[str, int]:
     """{hand part: how many of the `refused` labels it meets the observed voxels with}
     (first_collision's words for them; a label can count for several parts)."""
@@ -89,13 +78,10 @@ def parts_hit(scene, refused) -> dict[str, int]:
 
 
 def report(scene_dir) -> str:
-    """What --label-clearance does to the scene files under `scene_dir`: the labels it
+    """What the lever does to the scene files under `scene_dir`: the labels it
     refuses, per grasp mode, the scenes it leaves without a label, its CPU per scene; the
     scores of the refused and kept labels, and the hand parts that meet the voxels."""
-    files = sorted(pathlib.Path(scene_dir).rglob("*.npz"))
-    if not files:
-        raise DataError(f"no scene files (*.npz) under {scene_dir}; give the scenes directory of "
-                        "'ros2 run sim_bridge datagen scenes' (or of 'recipes restore')")
+    files = _scene_files(scene_dir)
     labels, refused, empty_before, empty_after, cpu_s = {}, {}, 0, 0, 0.0
     scores_refused, scores_kept, parts = [], [], {}
     for f in files:
@@ -128,15 +114,69 @@ def report(scene_dir) -> str:
     return "\n".join(lines)
 
 
+def _scene_files(scene_dir) -> list:
+    files = sorted(pathlib.Path(scene_dir).rglob("*.npz"))
+    if not files:
+        raise DataError(f"no scene files (*.npz) under {scene_dir}; give the scenes directory of "
+                        "'ros2 run sim_bridge datagen scenes' (or of 'recipes restore')")
+    return files
+
+
 def _median(arrays) -> float:
     values = np.concatenate(arrays)
     return float(np.median(values)) if len(values) else float("nan")
 
 
-if __name__ == "__main__":
-    if len(sys.argv) != 2:
-        sys.exit("usage: python -m gravgrasp_detector.training.label_clearance SCENE_DIR")
+def write_scenes(scene_dir, out_dir) -> tuple[int, int]:
+    """Every scene file under `scene_dir` written under `out_dir` (same relative path) with
+    its refused labels moved to the negatives, the arrays otherwise as stored; a file
+    already written is kept, so an interrupted run resumes. Returns (scenes written now,
+    labels refused in them)."""
+    scene_dir, out_dir = pathlib.Path(scene_dir), pathlib.Path(out_dir)
+    files = _scene_files(scene_dir)
+    written = refused_total = 0
+    for f in files:
+        out = out_dir / f.relative_to(scene_dir)
+        if out.exists():
+            continue
+        scene = load_scene(f)
+        hit = refused_labels(scene)
+        with np.load(f) as z:
+            arrays = {k: z[k] for k in z.files}
+        if hit.any():
+            for key in ("label_index", "label_score", "label_e_x", "label_e_z", "label_mode"):
+                if key in arrays:
+                    arrays[key] = arrays[key][~hit]
+            negatives = arrays.get("negative_index", np.zeros((0, 3), np.uint8)).reshape(-1, 3)
+            reasons = arrays.get("negative_reason", np.zeros(len(negatives), np.uint8)).reshape(-1)
+            arrays["negative_index"] = np.concatenate([negatives, scene["index"][hit].astype(negatives.dtype)])
+            arrays["negative_reason"] = np.concatenate([reasons, np.full(int(hit.sum()), NEGATIVE_REFUSED,
+                                                                         reasons.dtype)])
+        out.parent.mkdir(parents=True, exist_ok=True)
+        atomic_files.save_npz(out, **arrays)
+        written, refused_total = written + 1, refused_total + int(hit.sum())
+    return written, refused_total
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m sim_bridge.studies.label_clearance_lever", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scene_dir", help="scene files (*.npz, searched recursively)")
+    p.add_argument("--write", metavar="OUT", default="",
+                   help="write the scenes with the refused labels as negatives under OUT (resumes)")
+    args = p.parse_args(argv)
     try:
-        print(report(sys.argv[1]))
+        if args.write:
+            written, refused = write_scenes(args.scene_dir, args.write)
+            print(f"labels_refused={refused}")
+            print(f"scenes_written={written}")
+        else:
+            print(report(args.scene_dir))
     except DataError as err:
-        sys.exit(f"label_clearance: {err}")
+        print(f"label_clearance_lever: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
