@@ -26,9 +26,9 @@ help:
 	@echo "make benchmark     - clutter removal: 16 scenes x 0.1/0.5/1.5 kg, all methods, held-out meshes + procedural (176 rounds each, ~14 h; nohup; resumable)"
 	@echo "make benchmark-baselines - the paper's Fig. 5 baselines: VGN, VN-EdgeGraspNet (Panda) and VGN on the 2F-85 beside the committed rounds (256 rounds, ~10 h; pinned, background, resumable)"
 	@echo "make lever-clearance - the label-time clearance lever: Ours retrained with the executor's clearance applied to its labels, 16-scene lever runs (~3.5 h; pinned, background, resumable)"
-	@echo "make lever-guarded - issue 42's execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
-	@echo "make lever-selection METHOD=ours_precision_sure - issue 42's selection levers: one registered method beside the committed Ours, Binary, Ours-Precision rounds (~80 min; pinned, background, resumable)"
-	@echo "make lever-decisive METHOD=... [PRODUCT=ours] [SCREEN=binary_scored] - issue 42's decisive runs of the chosen lever: 32 scenes on both tuning sets, then PRODUCT (default METHOD) there at 0.1-4 kg and on procedural seed 2000 once, SCREEN at 0.1/1.5 kg on the same 32 scenes (~14 h; pinned, background, resumable)"
+	@echo "make lever-guarded - the execution lever: Ours and Binary with the guarded approach on the lever runs' scenes (~2.7 h; pinned, background, resumable)"
+	@echo "make lever-selection METHOD=ours_precision_sure - the selection levers: one registered method beside the committed Ours, Binary, Ours-Precision rounds (~80 min; pinned, background, resumable)"
+	@echo "make lever-decisive METHOD=... [PRODUCT=ours] [SCREEN=binary_scored] - the decisive runs of the chosen lever: 32 scenes on both tuning sets, then PRODUCT (default METHOD) there at 0.1-4 kg and on procedural seed 2000 once, SCREEN at 0.1/1.5 kg on the same 32 scenes (~14 h; pinned, background, resumable)"
 	@echo "make chain RECIPE=<file of sim_bridge/chains/> [ARGS=...] [PIN=commit] - a long-job recipe, pinned to a commit, in the background (resumable)"
 	@echo "make baselines-figure - SR/CR vs weight of every method, held-out and procedural side by side, and the table, from the rounds so far"
 	@echo "make soak          - 10 min: 30 Hz depth into tsdf + detect, /execute_grasp in the sim; RSS, drops, latency"
@@ -109,12 +109,12 @@ SOAK_ARM_S ?= 300
 soak-arm: setup
 	@$(ROS) python tests/support/arm_soak.py --duration-s $(SOAK_ARM_S) --drop-every-s 30 --out out/soak-arm
 
-# Clutter removal against object weight (issue 8); both resume in their --out directory.
+# Clutter removal against object weight (paper Sec. V-B/V-C); both resume in their --out directory.
 .PHONY: benchmark benchmark-quick
 benchmark-quick: setup
 	@$(ROS) ros2 run sim_bridge benchmark --quick --out out/benchmark_quick --workers $(WORKERS)
 
-# Benchmark v2 (issue 16): 16 scenes x 0.1/0.5/1.5 kg on two object sets the models never
+# Benchmark v2: 16 scenes x 0.1/0.5/1.5 kg on two object sets the models never
 # trained on, the 48 held-out VGN meshes and unseen procedural objects (procedural seed
 # 1000); 176 rounds per object set (Ours, Binary and Ours-Precision at each weight, the two
 # rotation ablations at 0.5 kg; sim_bridge/chains/benchmark_chain.sh adds ours_expected: 224), ~2.3 min
@@ -128,7 +128,7 @@ benchmark-heldout: setup
 benchmark-procedural: setup
 	@$(ROS) ros2 run sim_bridge benchmark --out out/benchmark --workers $(WORKERS) $(BENCH_SIZE)
 
-# The paper's Fig. 5 with its baselines (issue 41; sim_bridge/doc/baselines.md): vgn and
+# The paper's Fig. 5 with its baselines (sim_bridge/doc/baselines.md): vgn and
 # vn_edge (Panda hand) at 0.1/0.5/1.5 kg and vgn_2f85 at 0.1/1.5 kg on heldout_v4's and
 # procedural_v4's 16 scenes each, beside their committed 2F-85 rounds (copied, not rerun):
 # 256 rounds, ~69k CPU-s estimated, ~10 h on 2 free cores. Pinned to PIN in the background
@@ -164,7 +164,7 @@ lever-selection: setup
 lever-decisive: setup
 	@export SCREEN="$(SCREEN)"; $(call pinned_chain,out/decisive_$(METHOD).log,decisive_chain.sh $(METHOD) $(PRODUCT))
 
-# Dataset v2 (issue 15): per-object tables from candidates sampled per resting pose,
+# Dataset v2: per-object tables from candidates sampled per resting pose,
 # cheaper label settings (make label-settings-study), the held-out meshes left out.
 # The tables are committed (models/grasp_tables_v2); scenes are regenerated from the seed.
 GRASPS ?= 64
@@ -196,7 +196,7 @@ data-scenes: setup
 data-report: setup
 	@$(ROS) ros2 run sim_bridge data_report $(TABLES) --scenes $(REPORT_SCENES)
 
-# Dataset v4 (issue 15's labels per scene): the v2 tables grown in place to TABLES_V3_GRASPS
+# Dataset v4 (more labels per scene): the v2 tables grown in place to TABLES_V3_GRASPS
 # candidates (models/grasp_tables_v3, committed; its first 256 rows are v2's) and the v3
 # scenes relabelled from their committed recipes with them (the same settled scenes, no
 # physics, ~1 CPU-s a scene). sim_bridge/chains/dataset_v4_chain.sh runs both, then training.

@@ -1,4 +1,4 @@
-"""The paper's Fig. 5 with its baselines, side by side (issue 41, item 5): SR and CR
+"""The paper's Fig. 5 with its baselines, side by side: SR and CR
 against object weight (0.1, 0.5, 1.5 kg), one line per method, the held-out meshes and
 the procedural objects in two columns, plus a Markdown table; from the rounds on disk of
 the two runs `make benchmark-baselines` fills (sim_bridge/doc/baselines.md):

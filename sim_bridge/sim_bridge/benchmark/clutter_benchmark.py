@@ -1,4 +1,4 @@
-"""Clutter-removal benchmark against object weight (paper Sec. V-B/V-C, issue 8):
+"""Clutter-removal benchmark against object weight (paper Sec. V-B/V-C):
 `ros2 run sim_bridge benchmark`. No rclpy: the Drake world, the TSDF, the detector and
 the grasp executor run in-process, in simulated time.
 
@@ -94,7 +94,7 @@ def parse_weights(text) -> list:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description="Clutter-removal benchmark against object weight (issue 8).")
+    p = argparse.ArgumentParser(description="Clutter-removal benchmark against object weight (paper Sec. V-B/V-C).")
     p.add_argument("--out", default=None, help="output directory (resumes there); default out/benchmark[_quick]")
     p.add_argument("--quick", action="store_true", help=f"2 scenes (1 packed, 1 pile), weights "
                    f"{', '.join(map(str, QUICK_WEIGHTS_KG))} kg: CI minutes")

@@ -297,7 +297,7 @@ ATTEMPT_LOSSES = {"no_object": "closed_on_nothing", "jammed_on_approach": "conta
 
 def before_lift_losses(rounds) -> dict:
     """{(method, kg): {closed_on_nothing, contact_stops, rounds_all_refused, total}}: the
-    attempts lost before the lift (issue 42's count): closes on nothing (`no_object`), the
+    attempts lost before the lift: closes on nothing (`no_object`), the
     arm's contact stop on the approach or at the lift (`jammed_on_approach`,
     `lift_blocked`), and rounds that ended with every detected grasp refused by the
     executor (`no_feasible_grasp`)."""

@@ -1,6 +1,6 @@
 """VGN's detector (published weights, vgn.py) with its grasps executed by the Robotiq
 2F-85: beside `vgn` (the same grasps on the Panda hand) it separates what the detector
-brings from what the hand brings (issue 41, item 5; sim_bridge/doc/baselines.md).
+brings from what the hand brings (sim_bridge/doc/baselines.md).
 
 The frame conversion: the same finger-tip depth. Both TCP frames have the same axes
 (z = approach, y = the closing axis, x = y x z), so only the origin moves, along z:
