@@ -110,3 +110,36 @@ def test_every_relative_link_in_every_markdown_file_resolves():
 def test_readmes_stay_short(readme):
     n = len((ROOT / readme).read_text().split("\n"))
     assert n <= MAX_README_LINES, f"{readme} has {n} lines (at most {MAX_README_LINES}): move detail to <package>/doc/"
+
+
+MODULE_COMMAND = re.compile(r"python -m ((?:sim_bridge|gravgrasp_detector|robotiq_driver)(?:\.\w+)*)")
+
+
+def missing_modules(text: str, where: str) -> list:
+    """`python -m <project module>` lines whose module is not in the tree. A line that runs
+    an older commit's worktree (`out/pinned/`) names that commit's modules and is skipped."""
+    problems = []
+    for n, line in enumerate(text.split("\n"), 1):
+        if "out/pinned/" in line:
+            continue
+        for module in MODULE_COMMAND.findall(line):
+            top, *rest = module.split(".")
+            base = ROOT / top / top / Path(*rest) if rest else ROOT / top / top
+            if not (base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()):
+                problems.append(f"{where}:{n}: python -m {module} (no such module)")
+    return problems
+
+
+def test_the_checker_finds_a_moved_module():
+    assert missing_modules("python -m sim_bridge.analysis.fresh_scenes RUN\npython -m sim_bridge.benchmark.fresh_scenes RUN\n"
+                           "python -m sim_bridge.datagen objects\n(out/pinned/a47ba91: python -m sim_bridge.benchmark.replay)",
+                           "x.md") == ["x.md:2: python -m sim_bridge.benchmark.fresh_scenes (no such module)"]
+
+
+def test_every_python_m_command_in_the_docs_and_recipes_names_a_module_that_exists():
+    """A command a reader copies from a doc, a recipe or the Makefile must still run: a moved
+    module otherwise leaves a command that fails (the docs' links are checked above)."""
+    recipes = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "sim_bridge" / "chains").glob("*.sh"))
+    problems = [p for f in markdown_files() + recipes + ["Makefile"]
+                for p in missing_modules((ROOT / f).read_text(), f)]
+    assert not problems, f"{len(problems)} commands name a module that is gone:\n" + "\n".join(problems)
