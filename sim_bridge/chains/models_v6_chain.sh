@@ -94,4 +94,5 @@ for kg in 4.0 1.5 0.1; do
   bench procedural_v6_s2000_confirm procedural_s2000_confirm "$kg" "$ours3" --procedural-seed 2000
 done
 report procedural_v6_s2000_confirm "$ours3" --procedural-seed 2000
-say "done: write the answer (sim_bridge/doc/results.md, the README's table) from the three reports"
+python -m sim_bridge.benchmark.paper_claims --runs sim_bridge/results/heldout_v6_decisive,sim_bridge/results/procedural_v6_decisive
+say "done: write the answer (sim_bridge/doc/results.md, the README's table, the claims table) from the three reports"

@@ -1,8 +1,11 @@
 """The paper's claims, each a paired per-scene comparison (sim_bridge.benchmark.paper_claims):
 the verdicts, the drop from light to heavy, the baselines run used only where the run has no
 VN-EdgeGraspNet rounds, and results.md holding exactly what the command prints."""
+import json
 import re
 from pathlib import Path
+
+import pytest
 
 from sim_bridge.benchmark import paper_claims
 from sim_bridge.benchmark.paired import scene_rates
@@ -51,3 +54,19 @@ def test_results_md_holds_what_the_command_prints():
     assert m, "results.md has no <!-- paper-claims --> block"
     assert m.group(1).split("\n") == paper_claims.table_lines(ROOT), \
         "results.md's claims table differs: paste `python -m sim_bridge.benchmark.paper_claims` into it"
+
+
+def test_other_runs_are_read_when_given_and_a_wrong_count_is_refused(tmp_path, capsys):
+    runs = []
+    for name, diff in (("a", 1.0), ("b", 0.0)):
+        run = tmp_path / name
+        run.mkdir()
+        records = rounds("ours", 4.0, [diff] * 6) + rounds("ours_precision", 4.0, [0.0] * 6)
+        (run / "rounds.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+        runs.append(str(run))
+    assert paper_claims.main(["--runs", ",".join(runs)]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if "at 4 kg" in line)
+    assert "**holds**: +100.0 pts" in row and "level: +0.0 pts" in row
+    with pytest.raises(SystemExit):
+        paper_claims.main(["--runs", runs[0]])
+    assert "needs 2 run directories" in capsys.readouterr().err

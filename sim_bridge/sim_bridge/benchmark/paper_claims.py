@@ -2,7 +2,7 @@
 committed rounds of the runs the README's table reads (results_table.RUNS), printed as one
 Markdown table so it cannot be typed wrong.
 
-    python -m sim_bridge.benchmark.paper_claims
+    python -m sim_bridge.benchmark.paper_claims [--runs HELDOUT_RUN,PROCEDURAL_RUN]
 
 The claims (Ko et al., Sec. V-C and Fig. 5; "heavy" there is more than 1 kg):
 - Ours ahead of Ours-Precision at heavy weights (power labels pay), at each weight over 1 kg;
@@ -14,7 +14,7 @@ The claims (Ko et al., Sec. V-C and Fig. 5; "heavy" there is more than 1 kg):
 
 A verdict reads the sign and the sign-flip p value (benchmark/paired.py): "holds" is the
 claimed sign at p < 0.05, "same sign, n.s." the claimed sign without it, "opposite, n.s."
-and "opposite" the other sign. "On par" holds where p >= 0.05 ("no difference shown": a
+and "opposite" the other sign, "level" no difference at all. "On par" holds where p >= 0.05 ("no difference shown": a
 wide interval cannot show equality), and not where p < 0.05 ("no: ahead" or "no: behind").
 """
 from __future__ import annotations
@@ -66,10 +66,12 @@ def verdict(result: dict, on_par: bool = False) -> str:
     d, (lo, hi), p = result["diff"], result["ci95"], result["p_value"]
     if on_par:
         word = "no difference shown" if p >= SIGNIFICANT_P else ("no: ahead" if d > 0 else "no: behind")
+    elif math.isclose(d, 0.0, abs_tol=1e-9):
+        word = "level"
     elif d > 0:
         word = "**holds**" if p < SIGNIFICANT_P else "same sign, n.s."
     else:
-        word = "opposite" if p < SIGNIFICANT_P and not math.isclose(d, 0.0) else "opposite, n.s."
+        word = "opposite" if p < SIGNIFICANT_P else "opposite, n.s."
     return (f"{word}: {100 * d:+.1f} pts ({100 * lo:+.1f} to {100 * hi:+.1f}), p = {p:.2g}, "
             f"{result['scenes']} scenes").replace("-", "−")
 
@@ -91,12 +93,14 @@ def claims(rounds: list, baseline_rounds: list) -> list:
     return rows
 
 
-def table_lines(root: Path = REPO_ROOT) -> list:
-    """The claims table as Markdown lines: a row per claim, a column per object set."""
+def table_lines(root: Path = REPO_ROOT, runs=None) -> list:
+    """The claims table as Markdown lines: a row per claim, a column per object set; `runs`
+    (one run directory per object set, in RUNS' order) replaces RUNS' runs."""
+    runs = RUNS if runs is None else tuple(zip((label for label, _ in RUNS), runs, strict=True))
     columns = {label: dict(claims(rounds_file(root / run).records(),
                                   rounds_file(root / BASELINE_RUNS[label]).records()
                                   if (root / BASELINE_RUNS[label]).is_dir() else []))
-               for label, run in RUNS}
+               for label, run in runs}
     rows = list(dict.fromkeys(claim for cells in columns.values() for claim in cells))
     lines = ["| the paper's claim | " + " | ".join(columns) + " |", "| --- |" + " --- |" * len(columns)]
     lines += [f"| {claim} | " + " | ".join(cells.get(claim, "not run") for cells in columns.values()) + " |"
@@ -105,8 +109,17 @@ def table_lines(root: Path = REPO_ROOT) -> list:
 
 
 def main(argv=None) -> int:
-    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)
-    print("\n".join(table_lines()))
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", default="", help="comma-separated run directories, one per object set ("
+                   + ", ".join(label for label, _ in RUNS) + "); default: the README table's runs")
+    args = p.parse_args(argv)
+    runs = [r for r in args.runs.split(",") if r] or None
+    if runs is not None and len(runs) != len(RUNS):
+        p.error(f"--runs needs {len(RUNS)} run directories ({', '.join(label for label, _ in RUNS)}), got {len(runs)}")
+    missing = [r for r in runs or () if not rounds_file(r).path.is_file()]
+    if missing:
+        p.error(f"no rounds.jsonl in {', '.join(missing)}: give benchmark run directories (--out of a benchmark run)")
+    print("\n".join(table_lines(REPO_ROOT, runs and [str(Path(r).resolve()) for r in runs])))
     return 0
 
 
