@@ -1,9 +1,11 @@
 """The ROS edge every node of the project shares: geometry_msgs poses <-> 4x4 matrices,
-parameter descriptors, and (from robotiq_driver.node_process, the one copy every package's
+a request's deadline on the monotonic clock, parameter descriptors, and (from robotiq_driver.node_process, the one copy every package's
 nodes use) `run_node`, which starts, spins and shuts a node down.
 """
 
 from __future__ import annotations
+
+import time
 
 from geometry_msgs.msg import Pose, PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -38,6 +40,15 @@ def pose_stamped_from_matrix(X, stamp, frame_id: str) -> PoseStamped:
 def stamp_s(stamp) -> float:
     """builtin_interfaces/Time -> seconds."""
     return stamp.sec + stamp.nanosec * 1e-9
+
+
+def monotonic_deadline(stamp, clock) -> float | None:
+    """A request's deadline (a builtin_interfaces/Time on `clock`, the node's ROS clock;
+    0 = none) on time.monotonic's clock, or None: what the arm services compare against."""
+    deadline_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+    if deadline_ns == 0:
+        return None
+    return time.monotonic() + (deadline_ns - clock.now().nanoseconds) * 1e-9
 
 
 # -- parameters ----------------------------------------------------------------------

@@ -48,7 +48,8 @@ from std_srvs.srv import SetBool, Trigger
 from ..execution.ur_arm import ConnectionLost, TCPMismatch, URArm
 from ..execution.ur_arm_settings import FLANGE_TO_TCP_2F85_M, URArmSettings, xyz_yaw_to_matrix
 from ..poses import PoseError, matrix_from_pose
-from .interface import described, float_range, matrix_from_pose_msg, pose_stamped_from_matrix, run_node
+from .interface import (described, float_range, matrix_from_pose_msg, monotonic_deadline, pose_stamped_from_matrix,
+                        run_node)
 
 UNREACHABLE_HINT = ("check the Ethernet cable and robot_ip (pendant: Settings > System > Network), that the robot "
                     "is in Remote Control (e-Series), and that no other program holds its RTDE interface")
@@ -256,7 +257,7 @@ class URArmNode(Node):
         try:
             X = self._target(request.target)
             result = self.arm.move(X, float(request.speed_mps), check_only=bool(request.check_only),
-                                   deadline=self._deadline(request.deadline))
+                                   deadline=monotonic_deadline(request.deadline, self.get_clock()))
         except ValueError as e:
             response.reachable, response.success, response.message = False, False, f"rejected: {e}"
             return response
@@ -271,13 +272,6 @@ class URArmNode(Node):
         if not request.check_only and not result.success:
             self.get_logger().warn(f"move_to_pose: {result.message}")
         return response
-
-    def _deadline(self, stamp):
-        """MoveToPose's deadline (ROS time; 0 = none) on URArm's clock (time.monotonic)."""
-        deadline_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-        if deadline_ns == 0:
-            return None
-        return time.monotonic() + (deadline_ns - self.get_clock().now().nanoseconds) * 1e-9
 
     def _on_stop(self, request, response):
         response.success = self.arm.stop()

@@ -43,8 +43,7 @@ from gravgrasp_detector import atomic_files
 from ..parallel import task_seed
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import MODES, GraspSimulator
-from ..physics.hand_model import WRAP_MIN_RAD
-from ..physics.hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS
+from ..physics.hand_model import LEFT_LINKS, PALM_LINKS, RIGHT_LINKS, WRAP_MIN_RAD
 from ..physics.objects import ObjectError
 from .antipodal_sampling import SamplingSettings, sample_grasp_candidates, sample_grasp_candidates_at_rest
 from .object_sources import ObjectSource, shape_sha256

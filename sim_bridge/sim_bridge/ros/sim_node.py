@@ -43,7 +43,8 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool, Trigger
 
 from gravgrasp_detector.poses import PoseError
-from gravgrasp_detector.ros.interface import described, float_range, int_range, matrix_from_pose_msg, pose_msg_from_matrix, run_node
+from gravgrasp_detector.ros.interface import (described, float_range, int_range, matrix_from_pose_msg,
+                                              monotonic_deadline, pose_msg_from_matrix, run_node)
 from robotiq_driver.emulator.emulated_gripper import GripperEmulator
 from robotiq_driver.emulator.pty_modbus_server import PtyModbusServer
 
@@ -243,7 +244,7 @@ class SimNode(Node):
         if request.check_only or not reachable:
             response.success, response.message = False, message
             return response
-        given_up_at = self._deadline(request.deadline)
+        given_up_at = monotonic_deadline(request.deadline, self.get_clock())
         if given_up_at is not None and time.monotonic() >= given_up_at:  # as ur_arm refuses it
             response.reachable, response.success = False, False
             response.message = ("refused: the request's deadline passed before the motion started "
@@ -266,13 +267,6 @@ class SimNode(Node):
         response.success, response.message = motion.result
         response.stopped_by_contact, response.distance_left_m = motion.stopped_by_contact, motion.left_m
         return response
-
-    def _deadline(self, stamp):
-        """MoveToPose's deadline (ROS time; 0 = none) on time.monotonic's clock, or None."""
-        deadline_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-        if deadline_ns == 0:
-            return None
-        return time.monotonic() + (deadline_ns - self.get_clock().now().nanoseconds) * 1e-9
 
     def _on_fault(self, request, response):
         self.emulator.inject_fault(OVERCURRENT_FAULT)
