@@ -282,7 +282,7 @@ data-scenes-v1: setup
 # 128-candidate tables; the v3 models: TRAIN_DATA=out/scenes_v3 TRAIN_OUT=out/training_v3 EPOCHS=15
 # TRAIN_ARGS=--negative-weight=250, what sim_bridge/chains/dataset_v3_chain.sh runs, so that this copies its
 # finished models). Each run resumes from TRAIN_OUT/<variant>/checkpoint.pt; on a GPU
-# machine `train` runs on CUDA (gravgrasp_detector README, *On a GPU machine*).
+# machine `train` runs on CUDA (gravgrasp_detector/doc/training.md, *On a GPU machine*).
 # bf16 autocast only where the CPU has AMX (elsewhere it is emulated, slower than fp32).
 EPOCHS ?= 20
 TRAIN_DATA ?= out/scenes_v1
