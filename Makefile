@@ -176,7 +176,7 @@ GRASPS ?= 64
 SCENES ?= 5000
 # out/scenes_v2: the 128-candidate tables without the execution check (the shipped v2
 # models learned from it); out/scenes_v3: the grown tables, labels checked where the robot
-# executes them (sim_bridge README, *Dataset v2*). The pool is pinned per directory.
+# executes them (sim_bridge/doc/datasets.md, *What a label carries, and the execution check*). The pool is pinned per directory.
 SCENES_OUT ?= out/scenes_v3
 TABLES ?= models/grasp_tables_v3
 REPORT_SCENES ?= out/scenes_v4
