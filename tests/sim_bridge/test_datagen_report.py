@@ -78,3 +78,35 @@ def test_report_counts_wraps_by_the_rule_and_the_toward_the_palm_rows(tmp_path, 
     assert "wraps (held grasps meeting the wrap rule): 1 (33.3% of held)" in out
     assert "toward-the-palm rows (datagen wrap) of 1 objects: 2 closed, 2 held, 1 wraps; with them: 2 wraps of 5 held" in out
     assert "median 30.0 N (power 40.0 N, precision 10.0 N)" in out
+
+
+def test_report_gives_the_rescorings_core_hours_and_the_rows_it_lost(tmp_path, capsys):
+    """A table of `datagen rescore`: only the rows held in its source were simulated again
+    (the closing is unchanged, only the drive differs), so only their time is the
+    rescoring's; a row held in the source and not now is counted."""
+    import dataclasses
+    from sim_bridge.physics.contact import SimSettings
+    source_dir, objects = tmp_path / "v3", tmp_path / "v6" / "objects"
+    source_dir.mkdir()
+    objects.mkdir(parents=True)
+    old = SimSettings.for_labels()
+    new = dataclasses.replace(old, drive="self_locking")
+
+    def table(path, modes, seconds, settings, **extra):
+        modes = np.asarray(modes, np.uint8)
+        np.savez(path, mode=modes, grasped=modes != 2, scores_n=np.full((len(modes), 6), 9.0, np.float32),
+                 wall_time_s=np.asarray(seconds, np.float32), mode_names=np.asarray(MODE_NAMES),
+                 sim_settings=np.asarray(json.dumps(dataclasses.asdict(settings))), **extra)
+    table(source_dir / "a.npz", [1, 1, 0, 2, 2], [1.0, 1.0, 1.0, 0.5, 0.5], old)
+    # rows 0-2 simulated again (3 + 4 + 5 s; row 1 no longer held), rows 3-4 copied
+    table(objects / "a.npz", [1, 2, 0, 2, 2], [3.0, 4.0, 5.0, 0.5, 0.5], new,
+          rescored_from=np.asarray(str(source_dir / "a.npz")))
+    assert main([str(tmp_path / "v6"), "--png", str(tmp_path / "r.png")]) == 0
+    out = capsys.readouterr().out
+    assert ("rescored tables (datagen rescore): 1 objects, 3 rows simulated again in 0.00 core-hours "
+            "(the other rows copied); held in the source but not now: 1 of 3 (33.3%)") in out, out
+    from sim_bridge.datagen.data_report import collect
+    assert collect(tmp_path / "v6")["rescored"]["wall_time_s"] == 12.0
+    (source_dir / "a.npz").unlink()  # a source that cannot be read is said, not guessed
+    assert main([str(tmp_path / "v6"), "--png", str(tmp_path / "r.png")]) == 0
+    assert "1 tables' sources not found" in capsys.readouterr().out

@@ -4,7 +4,8 @@ DIR is a datagen output directory (with objects/ and optionally scenes/) or a
 directory of grasp tables.  Prints objects, simulated and successful grasps, mode
 split, the wraps (held power grasps whose distal links wrapped past their stop, from each
 row's finger angles: the wrap rule of physics.grasp_simulation.classify_mode), the
-toward-the-palm rows of `datagen wrap`, skipped objects with their reasons, score
+toward-the-palm rows of `datagen wrap`, what `datagen rescore` simulated again (its rows'
+core-hours, held rows that no longer hold), skipped objects with their reasons, score
 statistics per mode, labels per scene and their gravity-rejection score per mode;
 writes a PNG with the score histograms per mode and the labels per scene.
 Scenes are read from DIR/scenes or from --scenes (the tables are committed under
@@ -23,8 +24,10 @@ import sys
 import numpy as np
 
 from gravgrasp_detector import atomic_files
+from ..physics.contact import SimSettings
 from .object_grasps import MODE_NAMES, wrapping_power
 from .power_grasps import DIRECTORY as TOWARD_PALM
+from .rescored_tables import rows_to_simulate
 
 
 def _tables_dir(d):
@@ -40,13 +43,30 @@ def wraps_of(table) -> np.ndarray:
     return wrapping_power(table) & table["grasped"].astype(bool)
 
 
+def rescored_rows(table):
+    """For a table of `datagen rescore` (it names its source in `rescored_from`): (mask of the
+    rows it simulated again, mask of the rows held in the source), or None where the source
+    table cannot be read (its path is as the rescore was given it, e.g. relative to the project)."""
+    if "rescored_from" not in table.files or not pathlib.Path(str(table["rescored_from"])).is_file():
+        return None
+    with np.load(str(table["rescored_from"])) as source:
+        n = len(table["grasped"])
+        if len(source["grasped"]) != n:  # a sample of held rows (--max-held-rows): each was simulated
+            return np.ones(n, bool), np.ones(n, bool)
+        settings = (SimSettings.from_record(json.loads(str(t["sim_settings"]))) for t in (source, table))
+        again = np.zeros(n, bool)
+        again[rows_to_simulate(source, *settings, 0, 0)] = True
+        return again, source["grasped"].astype(bool)
+
+
 def collect(data_dir, scenes_dir=None):
     """Aggregate statistics of a data directory as a dict."""
     tdir = _tables_dir(data_dir)
     per_mode = {"power": [], "precision": []}
     stats = dict(objects=0, simulated=0, grasped=0, power=0, precision=0, sim_wall_time_s=0.0,
                  grasped_per_object=[], skipped=[], perturbed={}, perturbed_objects=0, wraps=0, without_wrap_measure=0,
-                 toward_palm=dict(objects=0, closed=0, held=0, wraps=0))
+                 toward_palm=dict(objects=0, closed=0, held=0, wraps=0),
+                 rescored=dict(objects=0, unread=0, simulated=0, wall_time_s=0.0, source_held=0, lost=0))
     table_rows = {}
     for p in sorted(tdir.glob("*.npz")):
         with np.load(p) as t:
@@ -65,6 +85,17 @@ def collect(data_dir, scenes_dir=None):
             wraps = wraps_of(t)
             stats["wraps"] += int(wraps.sum()) if wraps is not None else 0
             stats["without_wrap_measure"] += wraps is None
+            if "rescored_from" in t.files:
+                rs, rows = stats["rescored"], rescored_rows(t)
+                rs["objects"] += 1
+                if rows is None:
+                    rs["unread"] += 1
+                    continue
+                again, source_held = rows
+                rs["simulated"] += int(again.sum())
+                rs["wall_time_s"] += float(t["wall_time_s"][again].sum())
+                rs["source_held"] += int(source_held.sum())
+                rs["lost"] += int((source_held & ~grasped.astype(bool)).sum())
     for p in sorted((tdir / TOWARD_PALM).glob("*.npz")):  # datagen wrap's rows (power_grasps)
         with np.load(p) as t:
             tp = stats["toward_palm"]
@@ -137,7 +168,15 @@ def report_text(s):
                      f"{both} held ({100 * (s['wraps'] + tp['wraps']) / max(1, both):.1f}%)")
     if s["sim_wall_time_s"] > 0:
         lines.append(f"simulation wall time: {s['sim_wall_time_s'] / 3600:.2f} core-hours, "
-                     f"{3600 * s['simulated'] / s['sim_wall_time_s']:.0f} grasps per core-hour")
+                     f"{3600 * s['simulated'] / s['sim_wall_time_s']:.0f} grasps per core-hour"
+                     + ("; rescored tables count their copied rows at the source's time" if s["rescored"]["objects"] else ""))
+    rs = s["rescored"]
+    if rs["objects"]:
+        # per-row wall time of a worker that had a core to itself: the rescoring's core-hours
+        lines.append(f"rescored tables (datagen rescore): {rs['objects']} objects, {rs['simulated']} rows simulated "
+                     f"again in {rs['wall_time_s'] / 3600:.2f} core-hours (the other rows copied); held in the source "
+                     f"but not now: {rs['lost']} of {rs['source_held']} ({100 * rs['lost'] / max(1, rs['source_held']):.1f}%)"
+                     + (f"; {rs['unread']} tables' sources not found (run from the project root)" if rs["unread"] else ""))
     if s["grasped_per_object"]:
         gp = np.asarray(s["grasped_per_object"])
         lines.append(f"held grasps per object: median {np.median(gp):.0f}, min {gp.min()}, max {gp.max()}, "
