@@ -4,7 +4,7 @@
 # and its wraps made). One line per session resumes it (every step skips what is done):
 #   make chain RECIPE=models_v6_chain.sh PIN=<the commit it started on>
 # 1. out/scenes_v6: the 5,000 v3 scene recipes relabelled with the v6 tables (~45 min, no physics);
-#    the data report into models/grasp_tables_v6/data_report.txt;
+#    the data report into models/grasp_tables_v6/data_report.txt, and rescore_drift.txt (~3 CPU-min);
 # 2. Ours, Binary and Ours-Precision v6 (the v4 schedule: 15 epochs, negatives at 250, ~1 h each on
 #    2 cores) into out/training_v6/<variant>, copied to models/v6/ with the v4 file names (so that
 #    `--models-dir models/v6` runs them under the same method names), each with its validation
@@ -38,6 +38,11 @@ if [ ! -f "$tables/data_report.txt" ]; then
   python -m sim_bridge.datagen.data_report "$tables" --scenes "$scenes" --png "$tables/data_report.png" \
     > "$tables/data_report.txt.tmp"
   mv "$tables/data_report.txt.tmp" "$tables/data_report.txt"
+fi
+if [ ! -f "$tables/rescore_drift.txt" ]; then  # rows whose closing ends otherwise than in v3's code, both ways
+  python -m sim_bridge.studies.rescore_drift "$tables" --meshes "$meshes" --out "$tables/rescore_drift.json" \
+    > "$tables/rescore_drift.txt.tmp"
+  mv "$tables/rescore_drift.txt.tmp" "$tables/rescore_drift.txt"
 fi
 
 train() {  # train VARIANT FILE [OPTION]: out/training_v6/VARIANT (resumes per epoch), copied to models/v6/FILE

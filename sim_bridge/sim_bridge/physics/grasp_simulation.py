@@ -103,7 +103,7 @@ class GraspSimulator:
                                     for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))}
 
     # --- helpers -------------------------------------------------------------------
-    def _contacts(self, root):
+    def contact_links(self, root):
         """Names of the hand links touching the object."""
         return self._contact_summary(root)[0]
 
@@ -223,7 +223,7 @@ class GraspSimulator:
             # Closed on nothing while the object drifts off (gravity-free, nothing stops
             # it): no need to wait for it.
             if (x[iq] > hand_model.DRIVER_CLOSED_RAD - 0.06 and v_fing < s.settle_speed_m_s
-                    and not self._contacts(root)):
+                    and not self.contact_links(root)):
                 moved = self.plant.EvalBodyPoseInWorld(pc, self.object_body).translation() - X_W_O.translation()
                 if np.linalg.norm(moved) > 0.005:
                     return root, "object pushed out of the hand"
@@ -236,9 +236,7 @@ class GraspSimulator:
         root, reason = self.close(X_object_tcp)
         links, n_contacts = (self._contact_summary(root) if not reason.startswith("hand collides")
                              else (set(), 0))
-        left = any(l.startswith("left_") for l in links)
-        right = any(l.startswith("right_") for l in links)
-        grasped = left and right and not reason
+        grasped = held_between_fingers(links) and not reason
         if grasped and self.lock is not None:
             self.lock.engage(root)  # the fingers have stalled on the object: the screw holds
         angles = self.finger_joint_angles(root)
@@ -269,6 +267,11 @@ class GraspSimulator:
             contact_links=tuple(sorted(links)), num_contacts=n_contacts, finger_joint_angles=angles,
             sim_time_s=sim_time, wall_time_s=time.perf_counter() - wall0,
             departed=departed, reason=reason, wrap_rad=wrap)
+
+
+def held_between_fingers(contact_links) -> bool:
+    """After a clean closing: the object touches a link of each finger."""
+    return any(n.startswith("left_") for n in contact_links) and any(n.startswith("right_") for n in contact_links)
 
 
 def wrap_angle_rad(finger_joint_angles: dict) -> float:
