@@ -331,6 +331,16 @@ class SceneStore:
     def path(self, i):
         return self.dir / f"{i:06d}.npz"
 
+    def pin_manifest(self, manifest: dict) -> list:
+        """Write `manifest` (what makes scene i reproducible from its seed) beside the scenes,
+        or compare it with the one already there: the keys that differ, [] where none does."""
+        path = self.dir / "manifest.json"
+        if not path.exists():
+            atomic_files.save_json(path, manifest)
+            return []
+        old = json.loads(path.read_text())
+        return sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
+
 
 def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers=None, scheduler=None,
                     max_objects=5, max_views=6, progress=True, executor=None, settings=SceneSettings(),
@@ -358,15 +368,10 @@ def run_scene_stage(out_dir, objects_out_dir, mesh_dirs, n_scenes, seed, workers
                     approach_cone_deg=APPROACH_CONE_DEG if execution_check else None)
     # (a directory made before footprint packing or object_count cannot be resumed by this
     # generator: its manifest lacks those keys)
-    mpath = store.dir / "manifest.json"
-    if mpath.exists():
-        old = json.loads(mpath.read_text())
-        if old != manifest:
-            changed = sorted(k for k in manifest if old.get(k) != manifest[k])
-            raise SystemExit(f"{store.dir} was generated with different {', '.join(changed)}; "
-                             "use a new --out (scenes must stay reproducible from their seed)")
-    else:
-        atomic_files.save_json(mpath, manifest)
+    changed = store.pin_manifest(manifest)
+    if changed:
+        raise SystemExit(f"{store.dir} was generated with different {', '.join(changed)}; "
+                         "use a new --out (scenes must stay reproducible from their seed)")
     tasks = [SceneTask(i, seed, str(objects_dir), names, tuple(str(d) for d in mesh_dirs), max_objects, max_views,
                        settings=settings, label_pose=label_pose, symmetry=bool(symmetry),
                        mirrors=bool(symmetry and mirrors), execution_check=bool(execution_check),

@@ -273,15 +273,10 @@ def restore(recipe_dir, out_dir, objects_out_dir=None, mesh_dirs=(), workers=Non
     # what `datagen scenes` writes: so it resumes here (with the new pool when relabelled)
     here = dict(manifest, objects_dir=str(objects_dir.resolve()), object_pool_sha256=pool_sha256,
                 object_pool_size=len(names))
-    mpath = store.dir / "manifest.json"
-    if mpath.exists():
-        old = json.loads(mpath.read_text())
-        if old != here:
-            changed = sorted(k for k in here if old.get(k) != here[k])
-            raise RecipeError(f"{store.dir} holds scenes generated with different {', '.join(changed)}; "
-                              "restore into a new directory")
-    else:
-        atomic_files.save_json(mpath, here)
+    changed = store.pin_manifest(here)
+    if changed:
+        raise RecipeError(f"{store.dir} holds scenes generated with different {', '.join(changed)}; "
+                          "restore into a new directory")
     tasks = [RestoreTask(scene_task(manifest, i, r, objects_dir, names, mesh_dirs), r)
              for i, r in sorted(recipes.items())
              if not store.path(i).exists() and (keep is None or keep(store.path(i).name))]
