@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 import pytest
-from import_graph import module_imports  # tests/support
+from import_graph import layering_violations, sub_package  # tests/support
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "gravgrasp_detector" / "gravgrasp_detector"
 PLUMBING = {"poses", "atomic_files", "problem_log"}  # shared modules at the top; they import no sub-package
@@ -28,15 +28,6 @@ def _modules():
     return sorted(p for p in PACKAGE_DIR.rglob("*.py"))
 
 
-def _imports(path: pathlib.Path):
-    return module_imports(path, PACKAGE_DIR.parent)
-
-
-def _sub_package(path: pathlib.Path):
-    parts = path.relative_to(PACKAGE_DIR).parts
-    return parts[0] if len(parts) > 1 else None
-
-
 def test_every_module_sits_in_a_known_sub_package_or_is_plumbing():
     stray = [p.name for p in PACKAGE_DIR.glob("*.py") if p.stem not in PLUMBING | {"__init__"}]
     assert not stray, f"flat modules in gravgrasp_detector/gravgrasp_detector (move them into a sub-package): {stray}"
@@ -48,21 +39,7 @@ def test_every_module_sits_in_a_known_sub_package_or_is_plumbing():
 
 @pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE_DIR)))
 def test_imports_point_down(path):
-    own = _sub_package(path)
-    wrong = []
-    for module, line in _imports(path):
-        parts = module.split(".")
-        if parts[0] in ROS_MODULES and own != "ros":
-            wrong.append(f"line {line}: {module} (only gravgrasp_detector.ros talks to ROS)")
-        if parts[0] != "gravgrasp_detector" or len(parts) < 2:
-            continue
-        target = parts[1]
-        if target in PLUMBING:
-            continue
-        if own is None:
-            wrong.append(f"line {line}: {module} (plumbing imports no sub-package)")
-        elif target != own and target not in ALLOWED[own]:
-            wrong.append(f"line {line}: {module} ({own} may import {sorted(ALLOWED[own]) or 'nothing'})")
+    wrong = layering_violations(path, PACKAGE_DIR, ALLOWED, PLUMBING, ROS_MODULES)
     assert not wrong, "\n".join(wrong)
 
 

@@ -9,7 +9,7 @@ import pathlib
 import sys
 
 import pytest
-from import_graph import module_imports  # tests/support
+from import_graph import layering_violations, module_imports, sub_package  # tests/support
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge"
 PLUMBING = {"parallel"}  # shared modules at the top; they import no sub-package
@@ -39,8 +39,7 @@ def _imports(path: pathlib.Path):
 
 
 def _sub_package(path: pathlib.Path):
-    parts = path.relative_to(PACKAGE_DIR).parts
-    return parts[0] if len(parts) > 1 else None
+    return sub_package(path, PACKAGE_DIR)
 
 
 def test_every_module_sits_in_a_known_sub_package_or_is_plumbing():
@@ -52,23 +51,11 @@ def test_every_module_sits_in_a_known_sub_package_or_is_plumbing():
 
 @pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE_DIR)))
 def test_imports_point_down(path):
+    wrong = layering_violations(path, PACKAGE_DIR, ALLOWED, PLUMBING, ROS_MODULES)
     own = _sub_package(path)
-    wrong = []
-    for module, line in _imports(path):
-        parts = module.split(".")
-        if parts[0] in ROS_MODULES and own != "ros":
-            wrong.append(f"line {line}: {module} (only sim_bridge.ros talks to ROS)")
-        if parts[0] != "sim_bridge" or len(parts) < 2:
-            continue
-        target = parts[1]
-        if target in PLUMBING:
-            continue
-        if own is None:
-            wrong.append(f"line {line}: {module} (plumbing imports no sub-package)")
-        elif target != own and target not in ALLOWED[own]:
-            wrong.append(f"line {line}: {module} ({own} may import {sorted(ALLOWED[own]) or 'nothing'})")
-        elif target == "world" and own != "world" and len(parts) > 2:
-            wrong.append(f"line {line}: {module} (use the names sim_bridge.world exports, not its modules)")
+    wrong += [f"line {line}: {module} (use the names sim_bridge.world exports, not its modules)"
+              for module, line in _imports(path)
+              if module.startswith("sim_bridge.world.") and own not in ("world", None)]
     assert not wrong, "\n".join(wrong)
 
 
