@@ -123,13 +123,17 @@ def test_calibration_reports_stand_side_by_side_and_a_bad_one_is_one_line(run, t
                 "modes": {"all": {"mae_n": mae, "spearman": 0.6}, "power": {"mae_n": 2 * mae, "spearman": 0.5}},
                 "top_picks": {"score": picks, "expected_score": picks, "validness": picks}}
     new, old = tmp_path / "v6.json", tmp_path / "v4.json"
-    new.write_text(json.dumps(report("models/v6/gravgrasp.pt", 0.21, 11.5, 61, 20)))
+    v6 = report("models/v6/gravgrasp.pt", 0.21, 11.5, 61, 20)
+    v6["validness"]["precision_at_recall"] = {"0.8": 0.31, "0.9": 0.2, "0.95": 0.125}
+    new.write_text(json.dumps(v6))
     old.write_text(json.dumps(report("models/gravgrasp.pt", 0.15, 12.8, 44, 34)))
     card = _card(run, "--calibration", str(new), "--calibration", str(old))
     rows = {line.split("|")[1].strip(): line for line in card.splitlines() if line.startswith("| ")}
     assert "`models/v6/gravgrasp.pt` on `out/scenes_v6`" in card and "`models/gravgrasp.pt` on" in card
     assert rows["validness precision / recall (at its threshold)"].count("/ 0.900 (0.5)") == 2
     assert "| 0.210 / 0.900 (0.5) | 0.150 / 0.900 (0.5) |" in rows["validness precision / recall (at its threshold)"]
+    # at equal recall: the older report (made before the key) reads as a dash
+    assert "| 0.310 / 0.200 / 0.125 | — |" in rows["validness precision at equal recall 0.8 / 0.9 / 0.95"]
     assert "| 11.50 | 12.80 |" in rows["score MAE [N], all"] and "| 23.00 | 25.60 |" in rows["score MAE [N], power"]
     assert "| — | — |" in rows["score MAE [N], precision"]  # not in the reports: a dash, not an error
     assert "| 0.61 / 0.61 / 0.61 | 0.44 / 0.44 / 0.44 |" in rows[

@@ -2,6 +2,7 @@
 simulated score at the labelled voxels, per mode, on the held-out scenes."""
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -74,6 +75,15 @@ def test_validness_of_an_oracle_is_exact_and_a_constant_is_not(scenes):
     _, (probability, labelled) = score_calibration.network_at_labels(oracle, [path])
     v = score_calibration.validness_summary(probability, labelled)
     assert v["recall"] == 1.0 and v["precision"] == pytest.approx(labelled.mean()) and v["auroc"] == 0.5
+
+
+def test_precision_at_equal_recall_is_read_where_recall_reaches_it():
+    # 4 positives among 8, ranked: + + - + - - + -
+    probability = np.array([0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2])
+    labelled = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
+    p = score_calibration.precision_at_recall(probability, labelled, recalls=(0.5, 0.75, 1.0))
+    assert p == {"0.5": 1.0, "0.75": 0.75, "1.0": 4 / 7}  # 2 of 2, 3 of 4, 4 of 7 taken
+    assert all(np.isnan(v) for v in score_calibration.precision_at_recall(probability, labelled * False).values())
 
 
 def test_cli_scores_the_held_out_scenes_and_writes_the_figure(scenes, tmp_path, capsys):

@@ -14,7 +14,8 @@ directory (RUN_DIR: model.pt, history.json, training_curve.png as `train` writes
 - Validation metrics: final and best epoch of history.json.
 - Calibration (with --calibration, repeatable): `score_calibration` reports side by side,
   e.g. this model's and the shipped model's on the same validation scenes: validness
-  precision and recall at the threshold, AUROC, score MAE and Spearman per mode, and where
+  precision and recall at the threshold, precision at equal recalls, AUROC, score MAE and
+  Spearman per mode, and where
   the first pick of a scene lands (a held label, a known failure) by score, validness x
   score and validness.
 - Qualitative check: the PNGs of `make qualitative` (out/qualitative/<model stem>/)
@@ -197,12 +198,20 @@ def calibration_lines(reports: list, paths: list) -> list:
         v = r["modes"].get(m, {}).get(key)
         return "—" if v is None else f"{v:.{digits}f}"
 
+    # precision where every model has the same recall (reports made before it have none: a dash)
+    recalls = next((list(r["validness"]["precision_at_recall"]) for r in reports
+                    if "precision_at_recall" in r["validness"]), [])
     header = [f"`{r.get('model', '?')}` on `{r.get('data', '?')}` ({r.get('scenes', '?')} scenes, {r.get('split', '?')})"
               for r in reports]
     rows = [("validness precision / recall (at its threshold)",
              [f"{r['validness']['precision']:.3f} / {r['validness']['recall']:.3f} ({r['validness'].get('threshold', '?')})"
               for r in reports]),
             ("validness AUROC", [f"{r['validness'].get('auroc', math.nan):.3f}" for r in reports])]
+    if recalls:
+        rows.insert(1, (f"validness precision at equal recall {' / '.join(recalls)}",
+                        [" / ".join(f"{r['validness']['precision_at_recall'][q]:.3f}" for q in recalls)
+                         if set(recalls) <= set(r["validness"].get("precision_at_recall", {})) else "—"
+                         for r in reports]))
     for m in ("all", "power", "precision"):
         rows.append((f"score MAE [N], {m}", [mode(r, m, "mae_n", 2) for r in reports]))
         rows.append((f"score Spearman, {m}", [mode(r, m, "spearman", 3) for r in reports]))

@@ -5,8 +5,8 @@ labelled voxels of held-out scenes, per grasp mode (power / precision).
 (`make calibration`) writes DIR/calibration.png (one panel per mode: predicted against
 simulated score, the y = x line; then the validness reliability diagram) and
 DIR/calibration.json, and prints per mode the number of labels, the MAE [N] and
-Spearman's rank correlation, then validness precision / recall at the deployed threshold
-and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
+Spearman's rank correlation, then validness precision / recall at the deployed threshold,
+precision at equal recalls (EQUAL_RECALLS) and AUROC over the voxels `detect` considers, and where `detect`'s top 1 and top 5 grasps
 of a scene land under each ranking (score, expected_score = validness x score and
 validness for a score model, and told_<m>kg: by validness among the
 grasps scored >= 1.5 x m g, a detector told the payload m): on a labelled voxel (a grasp there held), on an explicit
@@ -160,9 +160,27 @@ def top_picks(model, metadata, scene_files, voxel_size_m, rankings=None,
     return out
 
 
+EQUAL_RECALLS = (0.8, 0.9, 0.95)  # where two models' validness is compared: precision at the same recall
+
+
+def precision_at_recall(probability, labelled, recalls=EQUAL_RECALLS) -> dict:
+    """{recall: precision} at the highest threshold whose recall reaches each of `recalls`:
+    two models compared at their own thresholds differ in recall too, here they do not."""
+    order = np.argsort(-np.asarray(probability), kind="stable")
+    hits = np.cumsum(np.asarray(labelled, bool)[order])
+    if not len(hits) or hits[-1] == 0:
+        return {str(r): float("nan") for r in recalls}
+    out = {}
+    for r in recalls:
+        k = int(np.searchsorted(hits, r * hits[-1] - 1e-9))  # first k with hits[k] >= r * positives
+        out[str(r)] = float(hits[k] / (k + 1))
+    return out
+
+
 def validness_summary(probability, labelled, threshold=DetectionOptions().validness_threshold, bins=10):
-    """Precision and recall at the deployed threshold, AUROC, and the reliability
-    diagram's bins (mean predicted probability, fraction labelled valid, voxels)."""
+    """Precision and recall at the deployed threshold, precision at equal recalls, AUROC,
+    and the reliability diagram's bins (mean predicted probability, fraction labelled
+    valid, voxels)."""
     above = probability >= threshold
     edges = np.linspace(0.0, 1.0, bins + 1)
     which = np.clip(np.digitize(probability, edges) - 1, 0, bins - 1)
@@ -173,6 +191,7 @@ def validness_summary(probability, labelled, threshold=DetectionOptions().validn
     return {"threshold": float(threshold), "voxels": int(len(probability)), "labelled_valid": int(labelled.sum()),
             "precision": float((above & labelled).sum() / max(above.sum(), 1)),
             "recall": float((above & labelled).sum() / max(labelled.sum(), 1)),
+            "precision_at_recall": precision_at_recall(probability, labelled),
             "auroc": auroc(probability, labelled), "reliability": reliability}
 
 
@@ -275,7 +294,8 @@ def main(argv=None):
               f"mean_predicted_n={row['mean_predicted_n']:.1f} mean_simulated_n={row['mean_simulated_n']:.1f}")
     print(f"validness near surfaces: {validness['voxels']} voxels, {validness['labelled_valid']} labelled valid; "
           f"at {validness['threshold']:g}: precision={validness['precision']:.4f} recall={validness['recall']:.3f} "
-          f"auroc={validness['auroc']:.4f}")
+          f"auroc={validness['auroc']:.4f}; precision at recall "
+          + ", ".join(f"{r}: {v:.4f}" for r, v in validness["precision_at_recall"].items()))
     told = {told_mass_kg(r): by_k[1] for r, by_k in picks.items() if told_mass_kg(r) is not None}
     for r, by_k in picks.items():
         if told_mass_kg(r) is not None:
