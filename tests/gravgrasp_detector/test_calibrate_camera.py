@@ -7,7 +7,6 @@ import re
 import subprocess
 
 import numpy as np
-import pytest
 from geometry_msgs.msg import PoseStamped
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image

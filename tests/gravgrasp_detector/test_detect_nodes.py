@@ -1,5 +1,4 @@
 """The tsdf and detect nodes as real processes over loopback DDS, fed by the committed bag."""
-import array
 import pathlib
 
 import numpy as np

@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 import pytest
-from import_graph import layering_violations, sub_package  # tests/support
+from import_graph import layering_violations  # tests/support
 
 PACKAGE_DIR = pathlib.Path(__file__).resolve().parents[2] / "gravgrasp_detector" / "gravgrasp_detector"
 PLUMBING = {"poses", "atomic_files", "problem_log"}  # shared modules at the top; they import no sub-package

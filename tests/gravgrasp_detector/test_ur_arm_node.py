@@ -4,7 +4,6 @@ them, served here by the node class with a recording stand-in of ur_rtde injecte
 the installed executable with the real ur_rtde against an address where no robot answers."""
 import math
 import threading
-import time
 
 import numpy as np
 import pytest

@@ -16,7 +16,7 @@ from sim_bridge.benchmark import methods, protocol, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
 from sim_bridge.datagen.object_sources import procedural_sources
 from sim_bridge.physics import panda_hand
-from sim_bridge.physics.baseline_files import BaselineFileMissing, baseline_file, baselines_dir
+from sim_bridge.physics.baseline_files import baselines_dir
 from sim_bridge.physics.hands import HANDS
 from sim_bridge.world import R_TOP_DOWN
 from baselines import needs_panda  # tests/support

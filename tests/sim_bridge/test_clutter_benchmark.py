@@ -8,12 +8,11 @@ import types
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 
-from gravgrasp_detector.perception import detection, model_file, networks, tsdf
+from gravgrasp_detector.perception import model_file, tsdf
 from sim_bridge.benchmark import clutter_benchmark as cb
-from sim_bridge.benchmark import clearing, methods, protocol, report, sim_cell
+from sim_bridge.benchmark import clearing, protocol, report, sim_cell
 from sim_bridge.benchmark import rounds as bench_rounds
 from sim_bridge.benchmark import run_files
 from sim_bridge.benchmark.methods import gravgrasp as gravgrasp_method
@@ -465,8 +464,6 @@ def test_run_outputs_determinism_and_resume(small_run, tmp_path, capsys, monkeyp
 def test_a_good_grasp_is_a_success_after_hold_and_shake_and_its_object_is_removed():
     """The cell on its own: a 34 mm cylinder (procedural test object 1) upright, a
     top-down grasp 2.5 cm below its top -> executor, 1 s hold, shake, removal."""
-    import dataclasses
-
     from sim_bridge.datagen.object_sources import procedural_sources
     from sim_bridge.world import R_TOP_DOWN
 

@@ -2,8 +2,6 @@
 Drake settling, real ray-cast depth and TSDF; labels checked against Eq. 1, the
 voxel grid and the collision model; deterministic and resumable per scene."""
 
-import pathlib
-
 import numpy as np
 import pytest
 import trimesh

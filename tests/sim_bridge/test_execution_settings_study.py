@@ -1,7 +1,6 @@
 """The execution-settings study's bookkeeping: agreement, what differs, the CPU ratio, and
 its refusal of settings that do not exist (the paired replay itself runs as
 `make execution-settings-study`; its rounds are committed)."""
-import pytest
 
 from sim_bridge.studies.execution_settings_study import main, markdown, summarize
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sim_bridge.physics import panda_hand
-from sim_bridge.physics.baseline_files import BaselineFileMissing, baseline_file, baselines_dir
+from sim_bridge.physics.baseline_files import BaselineFileMissing, baselines_dir
 from sim_bridge.physics.objects import procedural_object
 from sim_bridge.physics.scenes import TABLE_HEIGHT_M
 from sim_bridge.world import R_TOP_DOWN, SceneConfig, SimWorld, WorldSettings, pose

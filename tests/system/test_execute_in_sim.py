@@ -218,7 +218,7 @@ def stamp_ns(msg):
 
 def reload_scene(world):
     """The seed-2 box back on the table, the TSDF re-fused from frames after the reset."""
-    node, seen, call = world["node"], world["seen"], world["spin"].call
+    node, call = world["node"], world["spin"].call
     load = call(node.create_client(LoadScene, "load_scene"),
                 LoadScene.Request(seed=2, n_objects=1, arrangement="packed"), 120)
     assert load.success, load.message

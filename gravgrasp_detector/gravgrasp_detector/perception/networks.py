@@ -207,7 +207,7 @@ def _conv_at(conv, features, index, half=False):
     half=True: `features` are at half resolution and stand for their nearest 2x upsampling.
     """
     w = conv.weight.float()
-    out_channels, channels, k = w.shape[0], w.shape[1], w.shape[-1]
+    out_channels, k = w.shape[0], w.shape[-1]
     scale = 2 if half else 1
     size = torch.tensor(features.shape[2:]) * scale
     offsets = torch.arange(k) - k // 2

@@ -28,7 +28,7 @@ from gravgrasp_msgs.msg import GraspArray, TSDFVolume
 from gravgrasp_msgs.srv import ExecuteGrasp, MoveToPose
 from robotiq_driver.gripper_client import Robotiq2F85
 
-from ..execution.executor import (Abort, ArmMotion, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor, Outcome,
+from ..execution.executor import (Abort, ArmMotion, ArmTimeout, ArmUnavailable, ExecutionLimits, GraspExecutor,
                                   ResultCode, pose_to_matrix)
 from ..execution.reachability import DEFAULT_TCP_OFFSET_M, ArmReachability
 from .interface import described, pose_msg_from_matrix, run_node

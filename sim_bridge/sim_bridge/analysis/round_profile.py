@@ -120,7 +120,7 @@ def main(argv=None) -> int:
         print(f"round_profile: {e}", file=sys.stderr)
         return 2
     print(f"outcomes: {outcomes}")
-    print(f"| phase | CPU s | share | simulated s | calls | CPU s per simulated s |\n|---|---|---|---|---|---|")
+    print("| phase | CPU s | share | simulated s | calls | CPU s per simulated s |\n|---|---|---|---|---|---|")
     for name, cpu, sim, calls in rows:
         if cpu >= 0.05:
             rate = f"{cpu / sim:.2f}" if sim > 0.01 else ""

@@ -194,7 +194,6 @@ class GraspSimulator:
             return root, "hand collides with the object at the initial pose"
         self.ramp.set_ramp(self.ramp.GetMyContextFromRoot(root), np.zeros(3), 1e9, 0.0)
         self.simulator.Initialize()
-        nq = self.plant.num_positions()
         iq = self.hand.driver_joints[0].position_start()
         calm, t = 0, 0.0
         chunk = max(0.02, 5 * s.time_step_s)
