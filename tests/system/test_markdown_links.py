@@ -145,26 +145,38 @@ def test_every_python_m_command_in_the_docs_and_recipes_names_a_module_that_exis
     assert not problems, f"{len(problems)} commands name a module that is gone:\n" + "\n".join(problems)
 
 
+ROS2_RUN = re.compile(r"ros2 run (sim_bridge|gravgrasp_detector|robotiq_driver) (\w+)")
+
+
+def executables(package: str) -> set:
+    """The `ros2 run` executables a package's setup.py installs (its console_scripts)."""
+    return set(re.findall(r'"(\w+) = ', (ROOT / package / "setup.py").read_text()))
+
+
 def unknown_flags(text: str, where: str) -> list:
-    """`--flags` of the `python -m <project module>` commands in a shell recipe that no
-    source file of that module's top package names: a renamed or mistyped option, which a
-    long chain would otherwise meet hours in. Read from the source (no import, so it is fast;
-    some commands hand their options on to another module, e.g. detection_levers): loose,
-    but a typo or a removed option names nothing."""
+    """In `python -m <project module>` and `ros2 run <project package> <executable>` commands:
+    executables the package does not install, and `--flags` that no source file of the
+    command's top package names: a renamed or mistyped option, which a long chain would
+    otherwise meet hours in. Read from the source (no import, so it is fast; some commands
+    hand their options on to another module, e.g. detection_levers): loose, but a typo or a
+    removed option names nothing. A node's `--ros-args` and what follows are ROS's."""
     problems, sources = [], {}
     joined = re.sub(r"\\\n\s*", " ", text)  # one line per command
     for n, line in enumerate(joined.split("\n"), 1):
         if "out/pinned/" in line:
             continue
-        for match in MODULE_COMMAND.finditer(line):
-            top = match.group(1).split(".")[0]
+        commands = [(f"python -m {m.group(1)}", m.group(1).split(".")[0], m.end()) for m in MODULE_COMMAND.finditer(line)]
+        for m in ROS2_RUN.finditer(line):
+            if m.group(2) not in executables(m.group(1)):
+                problems.append(f"{where}: ros2 run {m.group(1)} {m.group(2)} (no such executable)")
+            commands.append((f"ros2 run {m.group(1)} {m.group(2)}", m.group(1), m.end()))
+        for name, top, end in commands:
             if top not in sources:
                 sources[top] = "\n".join(p.read_text() for p in (ROOT / top / top).rglob("*.py"))
-            source = sources[top]
-            command = re.split(r"\||>|&&|;", line[match.end():])[0]
+            command = re.split(r"\||>|&&|;|--ros-args", line[end:])[0]
             for flag in re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)", command):
-                if f'"{flag}"' not in source and f"'{flag}'" not in source:
-                    problems.append(f"{where}: python -m {match.group(1)} {flag} (no such option)")
+                if flag != "--help" and f'"{flag}"' not in sources[top] and f"'{flag}'" not in sources[top]:
+                    problems.append(f"{where}: {name} {flag} (no such option)")
     return problems
 
 
@@ -172,6 +184,11 @@ def test_the_flag_checker_finds_a_mistyped_option():
     recipe = ("python -m sim_bridge.datagen.data_report \"$t\" --scenes \"$s\" \\\n  --png x.png > r.txt\n"
               "python -m sim_bridge.studies.rescore_drift T --mesh M | tail\n")
     assert unknown_flags(recipe, "x.sh") == ["x.sh: python -m sim_bridge.studies.rescore_drift --mesh (no such option)"]
+    doc = ("ros2 run sim_bridge demo --help; ros2 run sim_bridge benchmark --out R --report\n"
+           "ros2 run gravgrasp_detector detect --ros-args -p model_path:=m.pt\n"
+           "ros2 run sim_bridge clutter_demo --seed 1\nros2 run sim_bridge datagen scenes --scene-count 3\n")
+    assert unknown_flags(doc, "x.md") == ["x.md: ros2 run sim_bridge clutter_demo (no such executable)",
+                                          "x.md: ros2 run sim_bridge datagen --scene-count (no such option)"]
 
 
 def test_every_option_a_chain_a_doc_or_the_makefile_passes_exists():
