@@ -12,7 +12,7 @@ from sim_bridge.datagen.object_grasps import load_table
 from sim_bridge.datagen.object_sources import object_from_table
 from sim_bridge.physics.contact import SimSettings
 from sim_bridge.physics.grasp_simulation import GraspSimulator
-from sim_bridge.studies.rescore_drift import copied_failures, held_after_closing, main
+from sim_bridge.studies.rescore_drift import drift, held_after_closing, main
 
 pytestmark = pytest.mark.drake
 
@@ -36,7 +36,7 @@ def rescored_copy(tmp_path, lose_row):
 
 def test_counts_both_directions(tmp_path, capsys):
     d = rescored_copy(tmp_path, lose_row=0)
-    failures = copied_failures(sorted(d.glob("*.npz")))
+    failures = drift(sorted(d.glob("*.npz")))["failures"]
     source = load_table(COMMITTED)
     assert len(failures) == int((~source["grasped"].astype(bool)).sum())  # row 0 was simulated again, not copied
     assert main([str(d), "--sample", "2", "--out", str(tmp_path / "rows.json")]) == 0

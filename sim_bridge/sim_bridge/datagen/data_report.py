@@ -24,10 +24,9 @@ import sys
 import numpy as np
 
 from gravgrasp_detector import atomic_files
-from ..physics.contact import SimSettings
 from .object_grasps import MODE_NAMES, wrapping_power
 from .power_grasps import DIRECTORY as TOWARD_PALM
-from .rescored_tables import rows_to_simulate
+from .rescored_tables import rescored_rows
 
 
 def _tables_dir(d):
@@ -41,22 +40,6 @@ def wraps_of(table) -> np.ndarray:
     if "finger_joint_names" not in table.files:
         return None
     return wrapping_power(table) & table["grasped"].astype(bool)
-
-
-def rescored_rows(table):
-    """For a table of `datagen rescore` (it names its source in `rescored_from`): (mask of the
-    rows it simulated again, mask of the rows held in the source), or None where the source
-    table cannot be read (its path is as the rescore was given it, e.g. relative to the project)."""
-    if "rescored_from" not in table.files or not pathlib.Path(str(table["rescored_from"])).is_file():
-        return None
-    with np.load(str(table["rescored_from"])) as source:
-        n = len(table["grasped"])
-        if len(source["grasped"]) != n:  # a sample of held rows (--max-held-rows): each was simulated
-            return np.ones(n, bool), np.ones(n, bool)
-        settings = (SimSettings.from_record(json.loads(str(t["sim_settings"]))) for t in (source, table))
-        again = np.zeros(n, bool)
-        again[rows_to_simulate(source, *settings, 0, 0)] = True
-        return again, source["grasped"].astype(bool)
 
 
 def collect(data_dir, scenes_dir=None):
@@ -88,14 +71,13 @@ def collect(data_dir, scenes_dir=None):
             if "rescored_from" in t.files:
                 rs, rows = stats["rescored"], rescored_rows(t)
                 rs["objects"] += 1
-                if rows is None:
-                    rs["unread"] += 1
-                    continue
-                again, source_held = rows
-                rs["simulated"] += int(again.sum())
-                rs["wall_time_s"] += float(t["wall_time_s"][again].sum())
-                rs["source_held"] += int(source_held.sum())
-                rs["lost"] += int((source_held & ~grasped.astype(bool)).sum())
+                rs["unread"] += rows is None
+                if rows is not None:
+                    again, source_held = rows
+                    rs["simulated"] += int(again.sum())
+                    rs["wall_time_s"] += float(t["wall_time_s"][again].sum())
+                    rs["source_held"] += int(source_held.sum())
+                    rs["lost"] += int((source_held & ~grasped.astype(bool)).sum())
     for p in sorted((tdir / TOWARD_PALM).glob("*.npz")):  # datagen wrap's rows (power_grasps)
         with np.load(p) as t:
             tp = stats["toward_palm"]

@@ -63,6 +63,22 @@ def rows_to_simulate(table, old, new, max_held_rows, seed) -> np.ndarray:
     return np.arange(len(table["grasped"])) if not max_held_rows else held
 
 
+def rescored_rows(table):
+    """For a table of `datagen rescore` (it names its source in `rescored_from`): (mask of the
+    rows it simulated again, mask of the rows held in the source), or None where the source
+    table cannot be read (its path is as the rescore was given it, e.g. relative to the project)."""
+    if "rescored_from" not in table.files or not pathlib.Path(str(table["rescored_from"])).is_file():
+        return None
+    with np.load(str(table["rescored_from"])) as source:
+        n = len(table["grasped"])
+        if len(source["grasped"]) != n:  # a sample of held rows (--max-held-rows): each was simulated
+            return np.ones(n, bool), np.ones(n, bool)
+        settings = (SimSettings.from_record(json.loads(str(t["sim_settings"]))) for t in (source, table))
+        again = np.zeros(n, bool)
+        again[rows_to_simulate(source, *settings, 0, 0)] = True
+        return again, source["grasped"].astype(bool)
+
+
 def run_rescore_task(task: RescoreTask):
     """Worker: one table simulated again. Returns ("ok", (rows simulated, held)) or ("error", msg)."""
     try:

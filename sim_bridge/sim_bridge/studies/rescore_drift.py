@@ -23,39 +23,31 @@ import time
 
 import numpy as np
 
-from ..datagen.data_report import rescored_rows
 from ..datagen.object_grasps import load_table
 from ..datagen.object_sources import object_from_table
+from ..datagen.rescored_tables import rescored_rows
 from ..physics.contact import SimSettings
 from ..physics.grasp_simulation import GraspSimulator, held_between_fingers
 
 NOT_A_CLOSING = ("hand collides", "simulation error")  # failure reasons the code cannot change / cannot say
 
 
-def copied_failures(tables):
-    """[(table path, row)] of the rows a rescore copied as failures that came from a closing."""
-    rows = []
+def drift(tables) -> dict:
+    """One pass over rescored tables: {lost: rows held in the source and not now, held: rows
+    held in the source, failures: [(table path, row)] of the failures the rescore copied that
+    came from a closing}. Tables whose source cannot be read are left out."""
+    out = {"lost": 0, "held": 0, "failures": []}
     for path in tables:
         with np.load(path) as t:
             marks = rescored_rows(t)
             if marks is None:
                 continue
-            again, _ = marks
-            rows += [(path, int(i)) for i in np.flatnonzero(~again & ~t["grasped"].astype(bool))
-                     if not str(t["reason"][i]).startswith(NOT_A_CLOSING)]
-    return rows
-
-
-def lost_rows(tables):
-    """(held in the source and not now, held in the source), summed over rescored tables."""
-    lost = held = 0
-    for path in tables:
-        with np.load(path) as t:
-            marks = rescored_rows(t)
-            if marks is not None:
-                lost += int((marks[1] & ~t["grasped"].astype(bool)).sum())
-                held += int(marks[1].sum())
-    return lost, held
+            (again, source_held), grasped = marks, t["grasped"].astype(bool)
+            out["lost"] += int((source_held & ~grasped).sum())
+            out["held"] += int(source_held.sum())
+            out["failures"] += [(path, int(i)) for i in np.flatnonzero(~again & ~grasped)
+                                if not str(t["reason"][i]).startswith(NOT_A_CLOSING)]
+    return out
 
 
 def held_after_closing(sim, X_object_tcp) -> bool:
@@ -94,8 +86,8 @@ def main(argv=None):
     d = pathlib.Path(args.tables)
     d = d / "objects" if (d / "objects").is_dir() else d
     tables = sorted(d.glob("*.npz"))
-    lost, held = lost_rows(tables)
-    candidates = copied_failures(tables)
+    counts = drift(tables)
+    lost, held, candidates = counts["lost"], counts["held"], counts["failures"]
     if not held or not candidates:
         print(f"rescore_drift: no rescored table with a readable source in {d} (run from the project root)",
               file=sys.stderr)
