@@ -175,8 +175,9 @@ def report_text(s):
         lines.append(f"perturbed rows (datagen perturb) of {s['perturbed_objects']} objects: {ways}")
     if s["skipped"]:
         lines.append(f"skipped objects: {len(s['skipped'])}")
-        for e in s["skipped"]:
-            lines.append(f"  {e['name']}: {e['reason']}")
+        for e in s["skipped"]:  # the stage's reasons already begin with the name
+            reason = e["reason"]
+            lines.append(f"  {reason}" if reason.startswith(f"{e['name']}:") else f"  {e['name']}: {reason}")
     n = s["labels_per_scene"]
     if len(n):
         arr = {a: s["arrangements"].count(a) for a in sorted(set(s["arrangements"]))}
