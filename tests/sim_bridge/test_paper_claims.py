@@ -70,3 +70,18 @@ def test_other_runs_are_read_when_given_and_a_wrong_count_is_refused(tmp_path, c
     with pytest.raises(SystemExit):
         paper_claims.main(["--runs", runs[0]])
     assert "needs 2 run directories" in capsys.readouterr().err
+
+
+def test_the_power_grasp_claim_reads_not_run_where_no_heavy_round_exists(tmp_path):
+    runs = []
+    for name, kg in (("a", 0.1), ("b", 4.0)):
+        run = tmp_path / name
+        run.mkdir()
+        records = rounds("ours", kg, [0.5] * 4) + rounds("ours_precision", kg, [0.5] * 4)
+        (run / "rounds.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+        runs.append(run)
+    lines = paper_claims.table_lines(tmp_path, [str(runs[0])] * 2)
+    assert lines[2] == "| Ours ahead of Ours-Precision above 1 kg | not run | not run |"
+    lines = paper_claims.table_lines(tmp_path, [str(r) for r in runs])  # one object set has a heavy run
+    assert not any("above 1 kg" in line for line in lines)
+    assert "| Ours ahead of Ours-Precision at 4 kg | not run | level: +0.0 pts" in "\n".join(lines)
