@@ -2,6 +2,7 @@
 of ur_rtde's interfaces (tests/support/fake_rtde.py): frames, the protective box, speed
 limits, refusals before motion, stop, timeouts, a lost link and the reconnect. The
 failure paths (stops, watchdog, latch): test_ur_arm_failures.py."""
+import functools
 import math
 import threading
 import time
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fake_rtde import FakeURController
+from fake_rtde import FakeControl, FakeURController
 from gravgrasp_detector.execution.ur_arm import ConnectionLost, URArm
 from gravgrasp_detector.execution.ur_arm_settings import URArmSettings, xyz_yaw_to_matrix
 from gravgrasp_detector.execution.ur_controller import matrix_to_ur_pose, pose_error
@@ -188,6 +189,26 @@ def test_lost_link_mid_motion_raises_then_reconnects():
     result = arm.move(tcp(0.15, 0.15, 0.40), 0.5)  # fresh interfaces, TCP set again
     assert result.success, result.message
     assert ur.connects == 2 and len(ur.called("setTcp")) == 6, "at each connect, check and moveL"
+
+
+def test_a_link_lost_under_any_call_of_a_motion_gives_the_same_message(monkeypatch):
+    """The link may go down between the loop's isConnected and its next command: that command
+    then raises (ur_rtde's reconnect fails) and the message must still say what happened."""
+    arm, ur = make_arm()
+    arm.connect()
+    real = FakeControl.getTCPOffset
+
+    @functools.wraps(real)
+    def down_mid_motion(control):
+        if ur._motion is not None:  # the read-back before moveL passes; the one in the loop meets the loss
+            ur._set_link(False)
+        return real(control)
+
+    monkeypatch.setattr(FakeControl, "getTCPOffset", down_mid_motion)
+    with pytest.raises(ConnectionLost, match=r"lost during a motion \(getTCPOffset failed: RuntimeError: .*"
+                       r"Robot is disconnected.*\): the controller's watchdog stops the arm within 0.5 s"):
+        arm.move(tcp(0.15, 0.15, 0.40), 0.1)
+    assert not arm.connected
 
 
 def test_a_call_that_never_answers_is_a_lost_link_not_a_hang():

@@ -625,6 +625,10 @@ class URArm:
         try:
             return self._watch_motion(control, receive, target, before, force_start_n, slider, limit_s,
                                       deadline_motion, deadline, speed_note, joints)
+        except ConnectionLost as e:  # one message whichever call saw the link go down first
+            raise self._lost(f"the RTDE connection was lost during a motion ({e}): the controller's watchdog stops "
+                             f"the arm within {s.watchdog_period_s:g} s of the last kick; check it on the teach "
+                             "pendant") from None
         finally:
             self._log(f"motion: largest watchdog kick gap {self._kick_gap_s * 1000:.0f} ms "
                       f"(watchdog {s.watchdog_period_s * 1000:.0f} ms)")
@@ -645,8 +649,7 @@ class URArm:
                 return MoveResult(True, False, f"motion stopped at the request's deadline (the caller gave up on it) "
                                   f"{where}", joints, False, left_m)
             if not (self._rpc(control.isConnected) and self._rpc(receive.isConnected)):
-                raise self._lost("the RTDE connection was lost during a motion: the controller's watchdog stops the "
-                                 f"arm within {s.watchdog_period_s:g} s of the last kick; check it on the teach pendant")
+                raise self._lost("the interfaces report themselves disconnected")
             safety = self._rpc(receive.getSafetyMode)
             if safety not in SAFETY_MODES_THAT_MOVE:
                 self._stop_cause = f"a {SAFETY_MODES.get(safety, safety)}"
