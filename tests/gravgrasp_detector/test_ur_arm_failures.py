@@ -3,6 +3,7 @@ one row each) against tests/support/fake_rtde.py, which answers each call as ur_
 1.6.5 does in each robot and safety state: the robot's state named before any question
 about the pose, recovery from a cleared stop without ~/reconnect, the RTDE watchdog on a
 lost link, and the latched emergency stop."""
+import functools
 import threading
 import time
 
@@ -65,6 +66,44 @@ def test_protective_stop_cleared_on_the_pendant_restores_control_by_itself():
     again = arm.move(tcp(0.15, 0.15, 0.30), 0.5)
     assert again.success, again.message
     assert ur.connects == 1, "no reconnect was needed, nor a call to ~/reconnect"
+
+
+def test_a_stop_between_two_calls_of_the_poll_is_a_stop_not_a_lost_link(monkeypatch):
+    """The script may end (a protective stop) after the poll's isProgramRunning and before
+    its getTCPOffset, which no script then answers: still a stop, with its own message."""
+    arm, ur = make_arm()
+    arm.connect()
+    real = FakeControl.getTCPOffset
+
+    @functools.wraps(real)
+    def stop_mid_motion(control):
+        if ur._motion is not None:  # the stand-in's own protective stop, due now
+            ur.protective_stop_after_s = 0.0
+            ur._update()
+        return real(control)
+
+    monkeypatch.setattr(FakeControl, "getTCPOffset", stop_mid_motion)
+    hit = arm.move(tcp(0.15, 0.15, 0.30), 0.2)
+    assert not hit.success and hit.message.startswith("PROTECTIVE_STOP during the motion"), hit.message
+    assert arm.connected
+
+
+def test_a_stop_just_before_isprogramrunning_is_that_stop_not_a_pendant_stop(monkeypatch):
+    """The poll read NORMAL, then an emergency stop ended the script before isProgramRunning."""
+    arm, ur = make_arm()
+    arm.connect()
+    real = FakeControl.isProgramRunning
+
+    @functools.wraps(real)
+    def stop_mid_motion(control):
+        if ur._motion is not None:
+            ur.emergency_stop_after_s = 0.0
+            ur._update()
+        return real(control)
+
+    monkeypatch.setattr(FakeControl, "isProgramRunning", stop_mid_motion)
+    hit = arm.move(tcp(0.15, 0.15, 0.30), 0.2)
+    assert hit.message.startswith("ROBOT_EMERGENCY_STOP during the motion"), hit.message
 
 
 def test_emergency_stop_released_restores_control_at_the_next_request():

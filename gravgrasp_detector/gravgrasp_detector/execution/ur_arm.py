@@ -670,11 +670,15 @@ class URArm:
             # The script writes the end of a motion only from its own threads: a script that
             # stopped mid-move (the watchdog, the pendant's Stop) leaves "running" for ever.
             if not self._rpc(control.isProgramRunning):
+                if self._rpc(receive.getSafetyMode) not in SAFETY_MODES_THAT_MOVE:
+                    continue  # a stop since the check above ended the script: the next poll reports it
                 return self._script_ended(receive, target, joints)
             # ur_rtde reconnecting by itself mid-motion (a kick or a poll hit a socket error)
             # restarts its script: that ends the motion, or, when the command it resends is this
             # moveL, runs it with the pendant's TCP; either way the TCP is the pendant's again.
-            held = [float(v) for v in self._rpc(control.getTCPOffset)]
+            held = self._tcp_offset_mid_motion(control, receive)
+            if held is None:  # the script ended between isProgramRunning and this command: the next poll says why
+                continue
             if max(abs(a - b) for a, b in zip(held, s.tcp_in_flange)) > 1e-6:
                 return self._restarted_mid_motion(control, receive, target, joints)
             if self._clock() > deadline_motion:
@@ -703,6 +707,21 @@ class URArm:
                               joints, False, dp)
         return MoveResult(True, True, f"reached the target ({dp * 1000:.1f} mm, {da:.2f} deg){speed_note}", joints,
                           False, dp)
+
+    def _tcp_offset_mid_motion(self, control, receive):
+        """getTCPOffset during a motion; None where no script answered it (ur_rtde throws "did
+        not succeed") because the script ended meanwhile with the link still up: a stop, which
+        the caller reports as such, not as a lost link. Raises ConnectionLost otherwise."""
+        calls = self._calls
+        if calls is None:
+            raise ConnectionLost(f"not connected to the robot ({self.last_error})")
+        try:
+            return [float(v) for v in self._wait(calls.submit(control.getTCPOffset), self.settings.call_timeout_s,
+                                                 "getTCPOffset")]
+        except ConnectionLost as e:
+            if self._rpc(receive.isConnected) and not self._rpc(control.isProgramRunning):
+                return None
+            raise self._lost(str(e)) from None
 
     def _restarted_mid_motion(self, control, receive, target, joints) -> MoveResult:
         s = self.settings
