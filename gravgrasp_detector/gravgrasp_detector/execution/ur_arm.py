@@ -390,14 +390,24 @@ class URArm:
         except Exception as e:  # ur_rtde raises RuntimeError on socket errors
             raise ConnectionLost(f"{what} failed: {type(e).__name__}: {e}") from None
 
-    def _rpc(self, method, *args):
-        """One RTDE call on the connection's thread, waited on at most call_timeout_s."""
-        calls = self._calls
+    def _connection(self):
+        """The connection's call thread; ConnectionLost while not connected."""
+        calls = self._calls  # read once: a drop on another thread may clear it
         if calls is None:
             raise ConnectionLost(f"not connected to the robot ({self.last_error})")
-        name = getattr(method, "__name__", "an RTDE call")
+        return calls
+
+    def _call(self, calls, method, *args):
+        """One RTDE call on the connection's thread `calls`, waited on at most call_timeout_s;
+        raises ConnectionLost and leaves the link to the caller."""
+        return self._wait(calls.submit(method, *args), self.settings.call_timeout_s,
+                          getattr(method, "__name__", "an RTDE call"))
+
+    def _rpc(self, method, *args):
+        """`_call`, the link dropped when it fails."""
+        calls = self._connection()
         try:
-            return self._wait(calls.submit(method, *args), self.settings.call_timeout_s, name)
+            return self._call(calls, method, *args)
         except ConnectionLost as e:
             raise self._lost(str(e)) from None
 
@@ -712,12 +722,9 @@ class URArm:
         """getTCPOffset during a motion; None where no script answered it (ur_rtde throws "did
         not succeed") because the script ended meanwhile with the link still up: a stop, which
         the caller reports as such, not as a lost link. Raises ConnectionLost otherwise."""
-        calls = self._calls
-        if calls is None:
-            raise ConnectionLost(f"not connected to the robot ({self.last_error})")
+        calls = self._connection()
         try:
-            return [float(v) for v in self._wait(calls.submit(control.getTCPOffset), self.settings.call_timeout_s,
-                                                 "getTCPOffset")]
+            return [float(v) for v in self._call(calls, control.getTCPOffset)]
         except ConnectionLost as e:
             if self._rpc(receive.isConnected) and not self._rpc(control.isProgramRunning):
                 return None
