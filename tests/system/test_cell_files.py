@@ -226,6 +226,8 @@ def test_sim_sample_end_to_end(ros_process, ros_node, spin, tmp_path):
         "no grasps from the stack"
     grasps = seen["grasps"].grasps
     assert min(g.gravity_rejection_score for g in grasps) >= 1.47
+    assert all(a.gravity_rejection_score >= b.gravity_rejection_score for a, b in zip(grasps, grasps[1:])), \
+        "not ranked by score"
     assert spin.call(ros_node.create_client(SetBool, "execute/arm"), SetBool.Request(data=True), resend_s=5.0).success
     result = spin.call(ros_node.create_client(ExecuteGrasp, "execute_grasp"),
                        ExecuteGrasp.Request(use_index=True, grasp_index=0), 300)
