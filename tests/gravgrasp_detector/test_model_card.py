@@ -18,6 +18,22 @@ from box_scenes import make_scene
 
 pytestmark = pytest.mark.slow  # the fixture trains a model
 
+_SUMMARIES = {}  # (data dir, tables dir) -> data_summary's answer, for this module's run
+_REAL_DATA_SUMMARY = model_card.data_summary
+
+
+@pytest.fixture(autouse=True)
+def data_report_once_per_inputs(monkeypatch):
+    """The card's dataset summary is sim_bridge's data_report in a subprocess (~5 CPU-s,
+    most of a card's time): it runs once for each tables + scenes pair this module asks
+    about, and later cards reuse its answer. Every test still renders real cards."""
+    def once(data_dir, tables_dir):
+        key = (str(data_dir), str(tables_dir))
+        if key not in _SUMMARIES:
+            _SUMMARIES[key] = _REAL_DATA_SUMMARY(data_dir, tables_dir)
+        return _SUMMARIES[key]
+    monkeypatch.setattr(model_card, "data_summary", once)
+
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
