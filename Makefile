@@ -3,10 +3,12 @@
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 ROS := set +u; source ros_ws/env.sh; set -u;
-# Both cores, one test file per worker (a file's module fixtures, e.g. a sim world, are built once),
-# in tests/conftest.py's order, heavy files first: xdist's default re-sorts files by test count,
-# which hands out the one-test heavy files (the soak, 84 s) last, with the other worker idle.
-PYTEST_ARGS ?= -n 2 --dist loadfile --no-loadscope-reorder
+# Three workers on the 2 cores: with two, a sixth of the cores sat idle while tests waited on
+# pseudo-terminals, timers and DDS (CI 671 s -> 611 s of tests with three). One test file per
+# worker (a file's module fixtures, e.g. a sim world, are built once), in tests/conftest.py's order,
+# heavy files first: xdist's default re-sorts files by test count, which hands out the one-test
+# heavy files (the soak, 84 s) last, with the other workers idle.
+PYTEST_ARGS ?= -n 3 --dist loadfile --no-loadscope-reorder
 
 .PHONY: help setup build test demo lock bench-detect bench-train bench-sim bench-gripper data-report data-objects data-scenes
 

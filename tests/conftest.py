@@ -24,8 +24,8 @@ import ros_testing  # noqa: E402  (from tests/support, put on the path above)
 _DOMAIN = ros_testing.claim_domain_id()
 os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-# `make test` runs two pytest workers on a 2-core machine (pytest-xdist): one math
-# thread per process (this one and the nodes it starts) instead of two each fighting
+# `make test` runs three pytest workers on a 2-core machine (pytest-xdist): one math
+# thread per process (this one and the nodes it starts) instead of several each fighting
 # over the same cores.
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -40,7 +40,7 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.ros)
     # Heavy files first, each kept whole and in order: those with the most kinds of heavy
     # work (ROS processes and Drake: the end-to-end tests, the soak), then the rest of
-    # the heavy ones, the quick files last. `make test`'s two workers take whole files
+    # the heavy ones, the quick files last. `make test`'s workers take whole files
     # in this order (with --no-loadscope-reorder: xdist's default re-sorts files by test count,
     # one-test heavy files last), so the quick files fill the gaps at the end instead of one worker
     # running the end-to-end tests alone.
