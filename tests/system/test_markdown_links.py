@@ -199,3 +199,76 @@ def test_every_option_a_chain_a_doc_or_the_makefile_passes_exists():
     problems = [p for f in recipes + markdown_files() + ["Makefile"]
                 for p in unknown_flags((ROOT / f).read_text(), f)]
     assert not problems, "\n".join(problems)
+
+
+BENCHMARK_COMMAND = re.compile(r"(ros2 run sim_bridge benchmark|python -m sim_bridge\.benchmark\.clutter_benchmark"
+                               r"|python -m sim_bridge\.studies\.detection_levers)(?!\w)")
+LEVER_TOOLS = re.compile(r"\s+(paired_run|replay|round_profile)\b")  # detection_levers TOOL: not the benchmark
+
+
+def unknown_methods(text: str, where: str, shipped: set, with_levers: set) -> list:
+    """`--methods` of benchmark commands that the command does not know: the benchmark knows
+    the shipped methods and the paper's baselines; a lever is a study's method, known to
+    `python -m sim_bridge.studies.detection_levers` (the benchmark's options, its methods
+    registered). A lever given to `ros2 run sim_bridge benchmark` is "unknown method"."""
+    problems = []
+    for line in one_line_per_command(text):
+        if "out/pinned/" in line or "run_pinned.sh" in line:  # an older commit's methods
+            continue
+        for m in BENCHMARK_COMMAND.finditer(line):
+            command = re.split(r"\||>|&&|;|`", line[m.end():])[0]
+            levers = m.group(1).endswith("detection_levers")
+            if levers and LEVER_TOOLS.match(command):
+                continue
+            models = re.findall(r"--model[ =](\S+)", command)  # --model NAME=PATH names a method
+            if any("$" in model for model in models):
+                continue  # a name the shell fills in
+            named = {model.strip("'\"").split("=")[0] for model in models}
+            for names in re.findall(r"--methods[ =]([\w,]+)", command):
+                for name in names.split(","):
+                    if name not in (with_levers if levers else shipped) | named:
+                        hint = " (a lever: python -m sim_bridge.studies.detection_levers)" if name in with_levers else ""
+                        problems.append(f"{where}: {m.group(1)} --methods {name}: unknown method{hint}")
+    return problems
+
+
+def one_line_per_command(text: str) -> list:
+    """The lines of a doc or recipe with each command on one: shell continuations joined,
+    and outside fenced blocks, a code span that prose wrapped over lines."""
+    text = re.sub(r"\\\n\s*", " ", text)
+    parts = re.split(r"(^```.*?^```)", text, flags=re.S | re.M)  # odd parts: fenced blocks
+    return "".join(part if i % 2 else re.sub(r"`[^`]*`", lambda m: m.group(0).replace("\n", " "), part)
+                   for i, part in enumerate(parts)).split("\n")
+
+
+def _known_methods() -> tuple:
+    """(shipped and baseline methods, those and the levers). The registry is one dict per
+    process that a study adds its methods to when imported: a study's are in PROVIDERS."""
+    from sim_bridge.benchmark.methods import METHODS, PROVIDERS
+    import sim_bridge.studies.detection_levers  # noqa: F401  (registers the levers)
+    return {m for m in METHODS if m not in PROVIDERS}, set(METHODS)
+
+
+def test_the_method_checker_finds_a_lever_given_to_the_benchmark():
+    shipped, with_levers = {"ours", "binary"}, {"ours", "binary", "ours_sure"}
+    doc = ("`ros2 run sim_bridge benchmark --out R --methods ours,ours_sure --report` | x\n"
+           "python -m sim_bridge.studies.detection_levers --out R \\\n  --methods ours_sure,binary\n"
+           "python -m sim_bridge.studies.detection_levers paired_run R --methods ours_told\n"
+           "python -m sim_bridge.benchmark.clutter_benchmark --methods ours_typo\n"
+           "ros2 run sim_bridge benchmark --model ours_new=m.pt --methods ours_new; a `ros2 run sim_bridge\n"
+           "benchmark --out R --methods\nbinary_scored` wrapped by the prose\n")
+    assert unknown_methods(doc, "x.md", shipped, with_levers) == [
+        "x.md: ros2 run sim_bridge benchmark --methods ours_sure: unknown method "
+        "(a lever: python -m sim_bridge.studies.detection_levers)",
+        "x.md: python -m sim_bridge.benchmark.clutter_benchmark --methods ours_typo: unknown method",
+        "x.md: ros2 run sim_bridge benchmark --methods binary_scored: unknown method"]
+
+
+def test_every_benchmark_command_names_methods_it_knows():
+    """A reader who reruns a doc's benchmark command (e.g. a report on committed rounds) gets
+    "unknown method" for a lever given to the product's benchmark."""
+    shipped, with_levers = _known_methods()
+    recipes = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "sim_bridge" / "chains").glob("*.sh"))
+    problems = [p for f in recipes + markdown_files() + ["Makefile"]
+                for p in unknown_methods((ROOT / f).read_text(), f, shipped, with_levers)]
+    assert not problems, f"{len(problems)} benchmark commands name a method they do not know:\n" + "\n".join(problems)
