@@ -47,6 +47,21 @@ def test_a_cell_holds_sr_interval_and_the_paired_difference_to_binary(tmp_path):
     assert len(lines) == 6
 
 
+def test_the_power_grasp_effect_is_the_last_row_of_a_run_that_reported_it(tmp_path):
+    """Ours − Ours-Precision per scene (power_grasp_effect.json, `benchmark --report`) under the
+    run's methods, a dash where either did not run; no row for a run reported before it."""
+    rows = [{"method": m, "mass_kg": w, "SR": 0.5, "SR_ci95": [0.3, 0.7], "successes": 10, "attempts": 20}
+            for m in ("ours", "ours_precision") for w in (1.5, 4.0)]
+    _write_runs(tmp_path, rows, [])
+    effect = [{"method": "ours", "reference": "ours_precision", "mass_kg": 1.5, "diff": float("nan"), "scenes": 0},
+              {"method": "ours", "reference": "ours_precision", "mass_kg": 4.0, "diff": 0.1234, "p_value": 0.0312,
+               "ci95": [0.02, 0.2], "scenes": 32}]
+    (tmp_path / results_table.RUNS[0][1] / "power_grasp_effect.json").write_text(json.dumps(effect))
+    lines = results_table.table_lines(tmp_path)
+    assert lines[4] == "| held-out meshes | Ours − Ours-Precision, per scene | — | +12.3 pts, p = 0.031 |"
+    assert len(lines) == 7 and not any("procedural objects | Ours − " in line for line in lines)
+
+
 def test_levers_and_weights_never_run_are_left_out_and_fewer_scenes_are_named(tmp_path):
     """Only the shipped models' rows; a weight a method never ran is a dash, not '0/0'; a
     cell on fewer scenes than the run's (0.5 kg on 16 of 32) says so."""

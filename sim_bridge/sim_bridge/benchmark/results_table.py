@@ -5,7 +5,8 @@ typed wrong.
 (`results.json` and `comparisons.json`, which `benchmark --report` writes) and prints one
 Markdown table: per run and shipped method, SR at each weight with its 95 % Wilson interval,
 and the mean per-scene difference to Binary with its paired sign-flip p value; a cell run on
-fewer scenes than the run's most says on how many. `--figure` also draws SR and CR against
+fewer scenes than the run's most says on how many. Under each run, the paper's power-grasp
+effect (Ours − Ours-Precision per scene, paired; `power_grasp_effect.json`). `--figure` also draws SR and CR against
 weight for those methods and, dashed, the paper's baselines of the baselines runs (Panda
 hand, 0.1-1.5 kg, 16 scenes), both object sets side by side. The levers run beside them are in
 levers.md (`lever_table`). tests/sim_bridge/test_results_table.py checks that README.md holds
@@ -27,6 +28,8 @@ SHOWN = ("ours", "binary", "ours_precision")
 METHOD_NAMES = {"ours": "**Ours**", "binary": "Binary", "ours_expected": "Ours, ranked by validness × score",
                 "ours_precision": "Ours-Precision", "ours_ey_ez": "Ours, ey-ez rotation",
                 "ours_quat": "Ours, quaternion rotation"}
+# The row under each run's methods: Ours − Ours-Precision per scene (paired.power_grasp_effect)
+POWER_EFFECT_ROW = "Ours − Ours-Precision, per scene"
 # The figure adds the paper's baselines, from the runs that compared them (16 scenes each)
 BASELINE_RUNS = {"held-out meshes": "sim_bridge/results/baselines_heldout",
                  "procedural objects": "sim_bridge/results/baselines_procedural"}
@@ -70,7 +73,19 @@ def table_lines(root: Path = REPO_ROOT) -> list:
                 c = next((c for c in comparisons if c["method"] == method and c["mass_kg"] == w), None)
                 cells.append(_cell(by_weight[w], c, scenes) if w in by_weight else "—")
             lines.append(f"| {label} | {METHOD_NAMES.get(method, method)} | " + " | ".join(cells) + " |")
+        effect_file = root / run / "power_grasp_effect.json"
+        if effect_file.is_file():  # the paper's power-grasp effect, as `benchmark --report` wrote it
+            effect = {c["mass_kg"]: c for c in json.loads(effect_file.read_text())}
+            lines.append(f"| {label} | {POWER_EFFECT_ROW} | "
+                         + " | ".join(_effect_cell(effect.get(w)) for w in weights) + " |")
     return lines
+
+
+def _effect_cell(c: dict | None) -> str:
+    """Ours − Ours-Precision per scene, paired, with its p value; a dash where either did not run."""
+    if not c or math.isnan(c["diff"]):
+        return "—"
+    return f"{100 * c['diff']:+.1f} pts, p = {c['p_value']:.2g}".replace("-", "−")
 
 
 def figure_series(root: Path = REPO_ROOT) -> dict:
