@@ -79,13 +79,17 @@ def test_levers_and_weights_never_run_are_left_out_and_fewer_scenes_are_named(tm
 
 
 def test_the_tabled_runs_are_the_shipped_models():
-    shipped = {"ours": "gravgrasp.pt", "binary": "gravgrasp_binary.pt"}
+    """Every tabled round ran the committed model file its run names: models/ or the run's
+    recorded --models-dir (e.g. models/v6, under the same method names)."""
+    from sim_bridge.benchmark.rounds import models_dir_of_run
+    shipped = {"ours": "gravgrasp.pt", "binary": "gravgrasp_binary.pt", "ours_precision": "gravgrasp_precision_only.pt"}
     for _, run in results_table.RUNS:
+        models = ROOT / models_dir_of_run(ROOT / run)
         for method, model in shipped.items():
-            sha = hashlib.sha256((ROOT / "models" / model).read_bytes()).hexdigest()
+            sha = hashlib.sha256((models / model).read_bytes()).hexdigest()
             rounds = [r for r in run_files.rounds_file(ROOT / run).records() if r["method"] == method]
             assert rounds and all(r["model_sha256"] == sha for r in rounds), \
-                f"{run}'s {method} rounds were not run with the shipped models/{model}"
+                f"{run}'s {method} rounds were not run with the committed {models.relative_to(ROOT)}/{model}"
 
 
 def test_the_figure_draws_every_shipped_method_and_baseline_on_both_object_sets(tmp_path):
