@@ -597,3 +597,19 @@ def test_the_report_refuses_rounds_run_under_other_execution_settings(tmp_path):
                                 "execution": EXECUTION_SETTINGS["fast"], "attempts": []}))
     with pytest.raises(ValueError, match="1 rounds .* ran under execution settings fast .* never pooled"):
         write_outputs(tmp_path, {"ours": [0.1]}, {"ours": "abc"}, ["packed_000"], [], P(), None)
+
+
+def test_figure_names_carry_the_weight_in_kg_as_people_write_it():
+    """`p_paired_ours_vs_binary_1.5=`, `p_paired_ours_vs_ours_precision_4=` (not 4.0): the names
+    the decisive comparison is read by; SR last."""
+    rows = [{"method": m, "mass_kg": 4.0, "SR": 0.25, "CR": 0.2, "before_lift": {"total": 3}} for m in ("ours", "binary")]
+    comparisons = [{"method": "ours", "mass_kg": 4.0, "p_value": 0.2,
+                    "paired": {"p_value": 0.04, "scenes_for_10pts": 30.0}},
+                   {"method": "ours", "mass_kg": 1.5, "p_value": 0.5, "paired": {"p_value": 0.5}}]
+    effect = [{"mass_kg": 4.0, "diff": 0.125, "p_value": 0.031}, {"mass_kg": 0.1, "diff": float("nan")}]
+    lines = cb.figure_lines(rows, comparisons, effect)
+    assert {"p_paired_ours_vs_binary_4=0.040", "scenes_for_10pts_ours_vs_binary_4=30", "p_paired_ours_vs_binary_1.5=0.500",
+            "diff_ours_vs_ours_precision_4=+0.125", "p_paired_ours_vs_ours_precision_4=0.031",
+            "before_lift_ours_4=3", "CR_binary_4=0.20"} <= set(lines)
+    assert not any("_0.1=" in line for line in lines)  # no effect where either did not run
+    assert lines[-2:] == ["SR_ours_4=0.25", "SR_binary_4=0.25"]

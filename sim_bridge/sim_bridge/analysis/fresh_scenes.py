@@ -19,7 +19,7 @@ import pathlib
 import sys
 
 from ..benchmark.paired import compare_paired
-from ..benchmark.protocol import scene_ids, weight_key
+from ..benchmark.protocol import scene_ids, weight_in_name
 from ..benchmark.report import summarize
 from .run_vs_run import load_rounds
 
@@ -83,9 +83,9 @@ def main(argv=None) -> int:
     print("\n".join(table_lines(rows, args.after, args.reference)))
     vs = f"vs_{args.reference}"
     for r in rows:
-        print(f"p_paired_{r['method']}_{vs}_{weight_key(r['mass_kg'])}_fresh={r['p_value']:.3f}")
+        print(f"p_paired_{r['method']}_{vs}_{weight_in_name(r['mass_kg'])}_fresh={r['p_value']:.3f}")
     for r in rows:
-        print(f"diff_{r['method']}_{vs}_{weight_key(r['mass_kg'])}_fresh={r['diff']:+.3f}")
+        print(f"diff_{r['method']}_{vs}_{weight_in_name(r['mass_kg'])}_fresh={r['diff']:+.3f}")
     return 0
 
 

@@ -20,7 +20,7 @@ import sys
 
 from ..benchmark import run_files
 from ..benchmark.paired import compare_paired
-from ..benchmark.protocol import weight_key
+from ..benchmark.protocol import weight_in_name
 from ..benchmark.report import before_lift_losses
 
 
@@ -106,9 +106,9 @@ def main(argv=None) -> int:
         return 2
     print("\n".join(table_lines(rows, pathlib.Path(args.base).name, pathlib.Path(args.lever).name)))
     for r in rows:
-        print(f"p_paired_{r['method']}_{weight_key(r['mass_kg'])}={r['p_value']:.3f}")
+        print(f"p_paired_{r['method']}_{weight_in_name(r['mass_kg'])}={r['p_value']:.3f}")
     for r in rows:
-        print(f"diff_{r['method']}_{weight_key(r['mass_kg'])}={r['diff']:+.3f}")
+        print(f"diff_{r['method']}_{weight_in_name(r['mass_kg'])}={r['diff']:+.3f}")
     return 0
 
 

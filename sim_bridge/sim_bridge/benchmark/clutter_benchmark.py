@@ -77,7 +77,7 @@ from . import failed_rounds
 from .methods import DEFAULT_METHODS, METHODS
 from .protocol import (ABLATION_METHODS, FULL_ABLATION_WEIGHTS_KG, FULL_WEIGHTS_KG, QUICK_ABLATION_WEIGHTS_KG,
                        QUICK_WEIGHTS_KG, DEFAULT_EXECUTION, EXECUTION_SETTINGS, PROCEDURAL_SEED,
-                       TRAINING_PROCEDURAL_SEED, Protocol, drive_of_run, execution_of_run, weight_key)
+                       TRAINING_PROCEDURAL_SEED, Protocol, drive_of_run, execution_of_run, weight_in_name)
 from .rounds import DEFAULT_MODELS_DIR, models_dir_of_run, resolve_methods, run_benchmark
 
 # CLI
@@ -236,25 +236,30 @@ def main(argv=None) -> int:
              if gave_up else "")
           + (("; rounds not finished yet: an interim report" if args.report else
               "; some rounds failed: rerun to retry them") if missing > gave_up else ""), flush=True)
-    for r in rows:
-        print(f"CR_{r['method']}_{weight_key(r['mass_kg'])}={r['CR']:.2f}")
-    for r in rows:
-        print(f"before_lift_{r['method']}_{weight_key(r['mass_kg'])}={r['before_lift']['total']}")
-    for c in json.loads((pathlib.Path(out) / "comparisons.json").read_text()):
-        print(f"p_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
-        if c.get("paired"):
-            print(f"p_paired_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}={c['paired']['p_value']:.3f}")
-            if not math.isnan(c["paired"].get("scenes_for_10pts", math.nan)):  # older comparisons.json lack it
-                print(f"scenes_for_10pts_{c['method']}_vs_binary_{weight_key(c['mass_kg'])}="
-                      f"{c['paired']['scenes_for_10pts']:.0f}")
     effect_file = pathlib.Path(out) / "power_grasp_effect.json"
-    for c in json.loads(effect_file.read_text()) if effect_file.exists() else []:
-        if not math.isnan(c["diff"]):
-            print(f"diff_ours_vs_ours_precision_{weight_key(c['mass_kg'])}={c['diff']:+.3f}")
-            print(f"p_paired_ours_vs_ours_precision_{weight_key(c['mass_kg'])}={c['p_value']:.3f}")
-    for r in rows:
-        print(f"SR_{r['method']}_{weight_key(r['mass_kg'])}={r['SR']:.2f}")
+    print("\n".join(figure_lines(rows, json.loads((pathlib.Path(out) / "comparisons.json").read_text()),
+                                 json.loads(effect_file.read_text()) if effect_file.exists() else [])))
     return 1 if missing and not args.report else 0
+
+
+def figure_lines(rows: list, comparisons: list, power_effect: list) -> list:
+    """The run's figures, one `name=value` a line, SR last: the results.json rows,
+    comparisons.json (against Binary) and power_grasp_effect.json (Ours against Ours-Precision)."""
+    kg = weight_in_name
+    lines = [f"CR_{r['method']}_{kg(r['mass_kg'])}={r['CR']:.2f}" for r in rows]
+    lines += [f"before_lift_{r['method']}_{kg(r['mass_kg'])}={r['before_lift']['total']}" for r in rows]
+    for c in comparisons:
+        lines.append(f"p_{c['method']}_vs_binary_{kg(c['mass_kg'])}={c['p_value']:.3f}")
+        if c.get("paired"):
+            lines.append(f"p_paired_{c['method']}_vs_binary_{kg(c['mass_kg'])}={c['paired']['p_value']:.3f}")
+            if not math.isnan(c["paired"].get("scenes_for_10pts", math.nan)):  # older comparisons.json lack it
+                lines.append(f"scenes_for_10pts_{c['method']}_vs_binary_{kg(c['mass_kg'])}="
+                             f"{c['paired']['scenes_for_10pts']:.0f}")
+    for c in power_effect:
+        if not math.isnan(c["diff"]):
+            lines.append(f"diff_ours_vs_ours_precision_{kg(c['mass_kg'])}={c['diff']:+.3f}")
+            lines.append(f"p_paired_ours_vs_ours_precision_{kg(c['mass_kg'])}={c['p_value']:.3f}")
+    return lines + [f"SR_{r['method']}_{kg(r['mass_kg'])}={r['SR']:.2f}" for r in rows]
 
 
 if __name__ == "__main__":

@@ -195,6 +195,12 @@ def weight_key(mass_kg: float) -> str:
     return repr(float(mass_kg))  # 0.1, 1.0, 1.5
 
 
+def weight_in_name(mass_kg: float) -> str:
+    """The weight as printed figure names carry it, in kg: 0.1, 1.5, 4 (`p_paired_ours_vs_binary_4=`);
+    round keys in files keep weight_key's 4.0."""
+    return f"{float(mass_kg):g}"
+
+
 def scene_ids(n_scenes: int) -> list:
     """packed_000, pile_000, packed_001, ...: the arrangements alternate."""
     return [f"{ARRANGEMENTS[i % 2]}_{i // 2:03d}" for i in range(n_scenes)]
