@@ -4,6 +4,7 @@ Six synthetic scenes (tests/support/box_scenes.make_scene: a fused TSDF of a box
 labels) laid out as `datagen scenes` does (DATA/scenes/*.npz + manifest.json naming the
 grasp tables), three small grasp tables, two epochs of `training_loop.train`.
 """
+import functools
 import json
 import shutil
 
@@ -18,8 +19,7 @@ from box_scenes import make_scene
 
 pytestmark = pytest.mark.slow  # the fixture trains a model
 
-_SUMMARIES = {}  # (data dir, tables dir) -> data_summary's answer, for this module's run
-_REAL_DATA_SUMMARY = model_card.data_summary
+_DATA_SUMMARY_ONCE = functools.cache(model_card.data_summary)  # per (data dir, tables dir), for this module
 
 
 @pytest.fixture(autouse=True)
@@ -27,12 +27,7 @@ def data_report_once_per_inputs(monkeypatch):
     """The card's dataset summary is sim_bridge's data_report in a subprocess (~5 CPU-s,
     most of a card's time): it runs once for each tables + scenes pair this module asks
     about, and later cards reuse its answer. Every test still renders real cards."""
-    def once(data_dir, tables_dir):
-        key = (str(data_dir), str(tables_dir))
-        if key not in _SUMMARIES:
-            _SUMMARIES[key] = _REAL_DATA_SUMMARY(data_dir, tables_dir)
-        return _SUMMARIES[key]
-    monkeypatch.setattr(model_card, "data_summary", once)
+    monkeypatch.setattr(model_card, "data_summary", _DATA_SUMMARY_ONCE)
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,9 @@ typed wrong.
 Markdown table: per run and shipped method, SR at each weight with its 95 % Wilson interval,
 and the mean per-scene difference to Binary with its paired sign-flip p value; a cell run on
 fewer scenes than the run's most says on how many. Under each run, the paper's power-grasp
-effect (Ours − Ours-Precision per scene, paired; `power_grasp_effect.json`). `--figure` also draws SR and CR against
-weight for those methods and, dashed, the paper's baselines of the baselines runs (Panda
-hand, 0.1-1.5 kg, 16 scenes), both object sets side by side. The levers run beside them are in
+effect (Ours − Ours-Precision per scene, paired; `power_grasp_effect.json`). `--figure` also
+draws SR and CR against weight for those methods and, dashed, the paper's baselines of the
+baselines runs (Panda hand, 0.1-1.5 kg, 16 scenes), both object sets side by side. The levers run beside them are in
 levers.md (`lever_table`). tests/sim_bridge/test_results_table.py checks that README.md holds
 exactly this output.
 """
@@ -50,8 +50,13 @@ def _cell(row: dict, comparison: dict | None, scenes: int) -> str:
     cell = f"{_pct(row['SR'])} ({row['successes']}/{row['attempts']}; {100 * lo:.0f}–{100 * hi:.0f}{fewer})"
     paired = (comparison or {}).get("paired")
     if paired and not math.isnan(paired["p_value"]):
-        cell += f", {100 * paired['diff']:+.1f} pts, p = {paired['p_value']:.2g}"
+        cell += ", " + _paired(paired)
     return cell.replace("-", "−")
+
+
+def _paired(c: dict) -> str:
+    """A per-scene paired difference (benchmark/paired.py's entry) and its p value."""
+    return f"{100 * c['diff']:+.1f} pts, p = {c['p_value']:.2g}".replace("-", "−")
 
 
 def table_lines(root: Path = REPO_ROOT) -> list:
@@ -83,9 +88,7 @@ def table_lines(root: Path = REPO_ROOT) -> list:
 
 def _effect_cell(c: dict | None) -> str:
     """Ours − Ours-Precision per scene, paired, with its p value; a dash where either did not run."""
-    if not c or math.isnan(c["diff"]):
-        return "—"
-    return f"{100 * c['diff']:+.1f} pts, p = {c['p_value']:.2g}".replace("-", "−")
+    return "—" if not c or math.isnan(c["diff"]) else _paired(c)
 
 
 def figure_series(root: Path = REPO_ROOT) -> dict:
