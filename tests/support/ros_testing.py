@@ -140,6 +140,11 @@ class RosProcess:
                 self.proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
                 continue
+        # Its children (the stack's arm adapter) got the same signal and may end a moment
+        # after it on a loaded machine: give them that moment before group_alive() judges.
+        deadline = time.monotonic() + timeout_s
+        while self.group_alive() and time.monotonic() < deadline:
+            time.sleep(0.05)
         self._log.close()
         return self.proc.returncode
 
