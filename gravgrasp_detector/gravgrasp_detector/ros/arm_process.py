@@ -49,6 +49,7 @@ class ArmProcess:
         self.on_start, self.on_exit = on_start, on_exit
         self.restart_after_s = restart_after_s
         self._stopping = threading.Event()
+        self._lock = threading.Lock()  # a start and stop() never interleave
         self._process: subprocess.Popen | None = None
         self._thread = threading.Thread(target=self._run, name="arm-process", daemon=True)
 
@@ -60,26 +61,37 @@ class ArmProcess:
     def start(self):
         self._thread.start()
 
+    def _spawn(self) -> subprocess.Popen:
+        return subprocess.Popen(self.command, preexec_fn=_die_with_parent)
+
     def _run(self):
-        while not self._stopping.is_set():
-            try:
-                self._process = subprocess.Popen(self.command, preexec_fn=_die_with_parent)
-            except OSError as e:
+        while True:
+            # Checked and started under the lock: a stop() arriving between the check and the
+            # start would otherwise see the old process and leave the new one running.
+            with self._lock:
+                if self._stopping.is_set():
+                    return
+                try:
+                    process = self._process = self._spawn()
+                except OSError as e:
+                    process, error = None, e
+            if process is None:
                 self.on_exit(-1, 127)
-                print(f"stack: cannot start the arm adapter {self.command[0]}: {e}", flush=True)
+                print(f"stack: cannot start the arm adapter {self.command[0]}: {error}", flush=True)
                 self._stopping.wait(self.restart_after_s)
                 continue
-            self.on_start(self._process.pid)
-            code = self._process.wait()
+            self.on_start(process.pid)
+            code = process.wait()
             if self._stopping.is_set():
                 return
-            self.on_exit(self._process.pid, code)
+            self.on_exit(process.pid, code)
             self._stopping.wait(self.restart_after_s)
 
     def stop(self, timeout_s: float = 5.0):
         """End the adapter (SIGINT, as Ctrl-C; then SIGKILL) and do not start it again."""
-        self._stopping.set()
-        process = self._process
+        with self._lock:
+            self._stopping.set()
+            process = self._process
         if process is not None and process.poll() is None:
             process.send_signal(signal.SIGINT)
             try:
