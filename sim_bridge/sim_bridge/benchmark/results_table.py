@@ -8,9 +8,9 @@ and the mean per-scene difference to Binary with its paired sign-flip p value; a
 fewer scenes than the run's most says on how many. Under each run, the paper's power-grasp
 effect (Ours − Ours-Precision per scene, paired; `power_grasp_effect.json`). `--figure` also
 draws SR and CR against weight for those methods and, dashed, the paper's baselines of the
-baselines runs (Panda hand, 0.1-1.5 kg, 16 scenes), both object sets side by side. The levers run beside them are in
-levers.md (`lever_table`). tests/sim_bridge/test_results_table.py checks that README.md holds
-exactly this output.
+baselines runs (Panda hand, 0.1-1.5 kg, 16 scenes), both object sets side by side. The
+levers run beside them are in levers.md (`lever_table`). tests/sim_bridge/test_results_table.py
+checks that README.md holds exactly this output.
 """
 
 from __future__ import annotations
